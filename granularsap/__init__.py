@@ -1,0 +1,19 @@
+"""granularsap: parallel Sweep-and-Prune contact and neighbour search.
+
+Exact lists of overlapping axis-aligned boxes, sphere contacts and neighbour
+pairs for molecular dynamics and granular (DEM) simulation, built on the
+parallel bi-dimensional Sweep and Prune of Capannini & Larsson.
+"""
+
+from ._version import __version__
+from .api import SweepAndPrune, box_overlaps
+from .particles import clump_contacts, neighbor_pairs, sphere_contacts
+
+__all__ = [
+    "SweepAndPrune",
+    "__version__",
+    "box_overlaps",
+    "clump_contacts",
+    "neighbor_pairs",
+    "sphere_contacts",
+]

@@ -1,0 +1,72 @@
+"""The ``granularsap`` command line.
+
+Each subcommand lives in its own module exposing ``add_arguments(parser)`` and
+``run(args) -> int``; heavy imports happen inside ``run`` so that
+``granularsap --help`` stays instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+#: subcommand -> (module, one-line help)
+SUBCOMMANDS = {
+    "bench": ("granularsap.bench.cli", "benchmark granularsap against other neighbour searches"),
+    "contacts": ("granularsap.io.cli_contacts", "contacts of every frame of a trajectory to HDF5"),
+    "info": ("granularsap.io.cli_info", "summarise a contacts HDF5 file"),
+    "validate": ("granularsap.validate", "compare granularsap with LAMMPS / MDAnalysis per frame"),
+}
+
+
+class CLIError(Exception):
+    """An error reported to the user as one line, exit code 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from ._version import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="granularsap",
+        description="Parallel Sweep-and-Prune contact and neighbour search.",
+    )
+    parser.add_argument("--version", action="version", version=f"granularsap {__version__}")
+    parser.add_argument("--traceback", action="store_true",
+                        help="show the full Python traceback on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (modname, helptext) in SUBCOMMANDS.items():
+        try:
+            mod = importlib.import_module(modname)
+        except ModuleNotFoundError as exc:
+            if exc.name and exc.name.startswith("granularsap"):
+                continue  # subcommand not part of this build
+            raise
+        p = sub.add_parser(name, help=helptext, description=(mod.__doc__ or helptext).strip())
+        p.add_argument("--traceback", action="store_true", default=argparse.SUPPRESS,
+                       help="show the full Python traceback on errors")
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_run", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        print("granularsap: interrupted", file=sys.stderr)
+        return 130
+    except (CLIError, ValueError, TypeError, OSError, ImportError) as exc:
+        if getattr(args, "traceback", False):
+            raise
+        print(f"granularsap {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
