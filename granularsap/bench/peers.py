@@ -1,0 +1,555 @@
+"""Adapters that run one benchmark workload through one library.
+
+Every adapter turns a :class:`~granularsap.bench.workloads.Workload` frame
+into a ``(k, 2)`` int64 array of pairs with ``i < j``, the way a user of that
+library would: its documented entry point, all threads where it has them.
+Libraries that take a single cutoff are asked for ``Workload.search_radius()``
+(twice the largest radius for contacts, the largest centre distance of two
+overlapping boxes for boxes) and their candidates are then filtered with the
+exact test (``d <= r_i + r_j`` or the closed-box test); that filter is part
+of the timed run, because it is part of what their users run.
+
+A peer that is not installed reports why in :meth:`Peer.missing`; a peer that
+cannot handle a workload (a triclinic cell, say) reports why in
+:meth:`Peer.unsupported`.  Neither is an error: the harness prints the reason
+and goes on.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+
+import numpy as np
+
+#: relative widening of the candidate radius for libraries that test ``d < r``
+_WIDEN = 1e-9
+
+
+def _version(dist):
+    try:
+        return importlib.metadata.version(dist)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+def _orient(i, j):
+    """``(k, 2)`` int64 pairs with ``i < j`` from two index arrays."""
+    i = np.asarray(i, dtype=np.int64)
+    j = np.asarray(j, dtype=np.int64)
+    return np.stack([np.minimum(i, j), np.maximum(i, j)], axis=1)
+
+
+def _half(i, j, d=None):
+    """Keep one direction (``i < j``) of a full neighbour list."""
+    keep = i < j
+    pairs = np.stack([np.asarray(i[keep], np.int64), np.asarray(j[keep], np.int64)], axis=1)
+    return pairs, (None if d is None else d[keep])
+
+
+def pair_distances(positions, pairs, box):
+    """Minimum-image distances of ``pairs`` in an orthorhombic cell (or open)."""
+    delta = positions[pairs[:, 1]] - positions[pairs[:, 0]]
+    if box is not None:
+        lengths = np.asarray(box[:3], dtype=np.float64)
+        delta -= lengths * np.round(delta / lengths)
+    return np.sqrt(np.einsum("ij,ij->i", delta, delta))
+
+
+def exact_filter(workload, frame, pairs, distances=None):
+    """Apply the workload's exact test to candidate ``pairs`` found with one radius."""
+    if workload.kind == "cutoff":
+        if distances is None:
+            distances = pair_distances(workload.frames[frame], pairs, workload.box)
+        return pairs[distances <= workload.cutoff]
+    if workload.kind == "contacts":
+        if distances is None:
+            distances = pair_distances(workload.frames[frame], pairs, workload.box)
+        r = workload.radii
+        return pairs[distances <= r[pairs[:, 0]] + r[pairs[:, 1]]]
+    lower, upper = workload.boxes(frame)
+    a, b = pairs[:, 0], pairs[:, 1]
+    ok = np.all((lower[a] <= upper[b]) & (lower[b] <= upper[a]), axis=1)
+    return pairs[ok]
+
+
+class Peer:
+    """One library's way of answering a workload.
+
+    Subclasses set ``name``, ``module`` (what must import), ``dist`` (the
+    distribution whose version is reported) and implement :meth:`run`.
+    """
+
+    name = "peer"
+    module = None
+    dist = None
+    description = ""
+    kinds = ("cutoff", "contacts", "boxes")
+    #: True when the peer keeps state between frames (``setup`` once, then ``run`` per frame)
+    stateful = False
+    #: True when the peer uses ``n_threads`` threads, False when it is serial
+    threaded = False
+    #: rebuilds the peer did on its own (stateful peers), reported with its timing
+    rebuilds = 0
+
+    def missing(self):
+        """None when usable, else a short reason (the import error)."""
+        if self.module is None:
+            return None
+        try:
+            importlib.import_module(self.module)
+        except Exception as exc:  # any import failure means "not usable here"
+            return f"{type(exc).__name__}: {exc}"
+        return None
+
+    def version(self):
+        return _version(self.dist) if self.dist else None
+
+    def unsupported(self, workload):
+        """None when the peer can answer ``workload``, else the reason it cannot."""
+        if workload.kind not in self.kinds:
+            return f"does not handle {workload.kind} workloads"
+        return None
+
+    def threads_used(self, n_threads):
+        return n_threads if self.threaded else 1
+
+    def setup(self, workload, n_threads):
+        """Untimed preparation for one workload (and its frames)."""
+        self.workload = workload
+        self.n_threads = n_threads
+
+    def run(self, frame):
+        """Pairs ``(k, 2)`` int64 with ``i < j`` for ``workload.frames[frame]``."""
+        raise NotImplementedError
+
+    def last_stats(self):
+        """Per-phase figures of the last run, when the peer has them."""
+        return None
+
+
+class CutoffPeer(Peer):
+    """A library answering "all pairs within r": candidates, then the exact filter."""
+
+    #: the library tests d < r instead of d <= r
+    strict = False
+
+    def search(self, positions, radius, box):
+        """``(pairs (k, 2) with i < j, distances or None)`` within ``radius``."""
+        raise NotImplementedError
+
+    def run(self, frame):
+        wl = self.workload
+        radius = wl.search_radius()
+        if wl.kind != "cutoff" or self.strict:
+            radius *= 1.0 + _WIDEN
+        box = wl.box if wl.kind != "boxes" else None
+        pairs, dist = self.search(wl.frames[frame], radius, box)
+        if wl.kind == "cutoff" and not self.strict:
+            return pairs
+        return exact_filter(wl, frame, pairs, dist)
+
+
+def _need_orthorhombic(workload):
+    if not workload.orthorhombic:
+        return "this adapter handles orthorhombic cells only"
+    return None
+
+
+# --------------------------------------------------------------------- granularsap
+
+
+class GranularSAP(Peer):
+    """granularsap's one-shot functions: box_overlaps, sphere_contacts, neighbor_pairs."""
+
+    name = "granularsap"
+    module = "granularsap"
+    dist = "granularsap"
+    description = "fresh call: box_overlaps / sphere_contacts / neighbor_pairs"
+    threaded = True
+
+    def run(self, frame):
+        import granularsap
+
+        wl = self.workload
+        pos = wl.frames[frame]
+        if wl.kind == "boxes":
+            lower, upper = wl.boxes(frame)
+            return granularsap.box_overlaps(lower, upper, n_threads=self.n_threads)
+        if wl.kind == "contacts":
+            return granularsap.sphere_contacts(pos, wl.radii, box=wl.box,
+                                               n_threads=self.n_threads)
+        return granularsap.neighbor_pairs(pos, wl.cutoff, box=wl.box, n_threads=self.n_threads,
+                                          return_distances=False)
+
+
+class GranularSAPSteady(Peer):
+    """One ``SweepAndPrune`` engine reused across frames (steady state).
+
+    Spheres become boxes ``x -/+ h`` (``h = cutoff / 2`` or ``h = r_i``); the
+    engine's candidates are filtered with the exact distance test.  In a
+    periodic orthorhombic cell, particles within the search radius of the
+    lower faces get ghost copies shifted by +L (one per combination of axes);
+    an image pair is kept only when the two images share no shifted axis, so
+    each pair comes out once.  The number of boxes stays fixed between frames:
+    unused ghost slots are parked far outside the cell on a diagonal where
+    they overlap nothing; when the ghosts outgrow the slots the engine is
+    rebuilt with more (counted in ``rebuilds``).
+    """
+
+    name = "granularsap-steady"
+    module = "granularsap"
+    dist = "granularsap"
+    description = "SweepAndPrune.update reused across frames"
+    stateful = True
+    threaded = True
+
+    def unsupported(self, workload):
+        why = super().unsupported(workload)
+        if why or workload.box is None:
+            return why
+        if not workload.orthorhombic:
+            return "ghost images are implemented for orthorhombic cells only"
+        if workload.search_radius() * 2 >= min(workload.box[:3]):
+            return "search radius is not below half the cell"
+        return None
+
+    def setup(self, workload, n_threads):
+        import granularsap
+
+        super().setup(workload, n_threads)
+        self._new_engine = lambda: granularsap.SweepAndPrune(n_threads=n_threads)
+        self.engine = self._new_engine()
+        self.rebuilds = 0
+        self.capacity = None
+        wl = workload
+        if wl.kind == "cutoff":
+            self.half = np.full((wl.n, 1), wl.cutoff / 2.0)
+        elif wl.kind == "contacts":
+            self.half = wl.radii[:, None]
+        self.stats = None
+
+    def last_stats(self):
+        return self.stats
+
+    def _update(self, lower, upper):
+        pairs = self.engine.update(lower, upper)
+        stats = getattr(self.engine, "stats", None)
+        self.stats = dict(stats) if stats else None
+        return np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+
+    def run(self, frame):
+        wl = self.workload
+        if wl.kind == "boxes":
+            lower, upper = wl.boxes(frame)
+            return self._update(lower, upper)
+        pos = wl.frames[frame]
+        if wl.box is None:
+            pairs = self._update(pos - self.half, pos + self.half)
+            return exact_filter(wl, frame, pairs)
+        return self._run_periodic(pos)
+
+    def _run_periodic(self, pos):
+        wl = self.workload
+        lengths = wl.box[:3]
+        radius = wl.search_radius() * (1.0 + _WIDEN)
+        pos = np.mod(pos, lengths)
+        near = pos < radius  # (n, 3): close to a lower face on that axis
+        idx = [np.arange(wl.n)]
+        shift = [np.zeros(wl.n, np.int8)]
+        for code in range(1, 8):
+            axes = [a for a in range(3) if code >> a & 1]
+            sel = np.flatnonzero(np.all(near[:, axes], axis=1))
+            idx.append(sel)
+            shift.append(np.full(len(sel), code, np.int8))
+        idx = np.concatenate(idx)
+        shift = np.concatenate(shift)
+        n_ghost = len(idx) - wl.n
+        if self.capacity is None or n_ghost > self.capacity:
+            if self.capacity is not None:
+                self.rebuilds += 1
+                self.engine = self._new_engine()
+            self.capacity = int(n_ghost * 1.25) + 16
+        bits = ((shift[:, None] >> np.arange(3)) & 1).astype(np.float64)
+        centres = pos[idx] + bits * lengths
+        half = np.broadcast_to(self.half[idx], centres.shape)
+        n_park = self.capacity - n_ghost
+        hmax = float(self.half.max()) if len(self.half) else 0.0
+        step = 2.0 * hmax + 1.0
+        park = -(np.arange(1, n_park + 1, dtype=np.float64)[:, None] * step + radius) \
+            * np.ones((1, 3))
+        lower = np.concatenate([centres - half, park - hmax])
+        upper = np.concatenate([centres + half, park + hmax])
+        cand = self._update(lower, upper)
+        n_real = len(idx)
+        cand = cand[(cand[:, 0] < n_real) & (cand[:, 1] < n_real)]
+        a, b = cand[:, 0], cand[:, 1]
+        cand = cand[(shift[a] & shift[b]) == 0]
+        a, b = cand[:, 0], cand[:, 1]
+        delta = centres[b] - centres[a]
+        d = np.sqrt(np.einsum("ij,ij->i", delta, delta))
+        i, j = idx[a], idx[b]
+        if wl.kind == "cutoff":
+            keep = d <= wl.cutoff
+        else:
+            keep = d <= wl.radii[i] + wl.radii[j]
+        return _orient(i[keep], j[keep])
+
+
+# ------------------------------------------------------------------------ peers
+
+
+class MDAnalysisPeer(CutoffPeer):
+    """MDAnalysis.lib.distances.self_capped_distance with an explicit method."""
+
+    module = "MDAnalysis"
+    dist = "MDAnalysis"
+    method = "nsgrid"
+
+    def unsupported(self, workload):
+        why = super().unsupported(workload)
+        if why is None and self.method == "nsgrid" and workload.box is None and workload.n < 2:
+            return "nsgrid needs at least two particles"
+        return why
+
+    def search(self, positions, radius, box):
+        from MDAnalysis.lib.distances import self_capped_distance
+
+        pairs, dist = self_capped_distance(positions, max_cutoff=radius, box=box,
+                                           method=self.method, return_distances=True)
+        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        return _orient(pairs[:, 0], pairs[:, 1]), dist
+
+
+class MDANSGrid(MDAnalysisPeer):
+    name = "mda-nsgrid"
+    method = "nsgrid"
+    description = "MDAnalysis self_capped_distance(method='nsgrid')"
+
+
+class MDAPKDTree(MDAnalysisPeer):
+    name = "mda-pkdtree"
+    method = "pkdtree"
+    description = "MDAnalysis self_capped_distance(method='pkdtree')"
+
+
+class ScipyCKDTree(CutoffPeer):
+    """scipy.spatial.cKDTree(..., boxsize=L).query_pairs(r, output_type='ndarray').
+
+    ``query_pairs`` has no ``workers`` argument (only the ``query*`` methods
+    that take query points do), so this peer is serial.
+    """
+
+    name = "scipy-ckdtree"
+    module = "scipy.spatial"
+    dist = "scipy"
+    description = "scipy cKDTree(boxsize=L).query_pairs(r, output_type='ndarray')"
+
+    def unsupported(self, workload):
+        return super().unsupported(workload) or _need_orthorhombic(workload)
+
+    def search(self, positions, radius, box):
+        from scipy.spatial import cKDTree
+
+        if box is None:
+            tree = cKDTree(positions)
+        else:
+            lengths = np.asarray(box[:3], dtype=np.float64)
+            wrapped = np.mod(positions, lengths)
+            wrapped[wrapped >= lengths] = 0.0
+            tree = cKDTree(wrapped, boxsize=lengths)
+        pairs = tree.query_pairs(radius, output_type="ndarray").astype(np.int64, copy=False)
+        return pairs.reshape(-1, 2), None
+
+
+def _cell_matrix(box):
+    """(3, 3) cell with rows as vectors from MDAnalysis box form."""
+    from MDAnalysis.lib.mdamath import triclinic_vectors
+
+    return np.asarray(triclinic_vectors(box), dtype=np.float64)
+
+
+def _open_cell(positions, radius):
+    """A bounding cell (origin, (3, 3) matrix) for libraries that always want one."""
+    if len(positions) == 0:
+        return np.zeros(3), np.eye(3)
+    lo = positions.min(axis=0) - radius
+    hi = positions.max(axis=0) + radius
+    return lo, np.diag(np.maximum(hi - lo, 1e-9))
+
+
+class ASEPeer(CutoffPeer):
+    """ase.neighborlist.neighbor_list('ijd', atoms, r) (full list, halved)."""
+
+    name = "ase"
+    module = "ase.neighborlist"
+    dist = "ase"
+    description = "ASE neighbor_list('ijd', Atoms(...), r)"
+
+    def unsupported(self, workload):
+        why = super().unsupported(workload)
+        if why is None and workload.box is not None and not _version("MDAnalysis"):
+            return "triclinic conversion needs MDAnalysis"
+        return why
+
+    def search(self, positions, radius, box):
+        from ase import Atoms
+        from ase.neighborlist import neighbor_list
+
+        if box is None:
+            atoms = Atoms(positions=positions, pbc=False)
+        else:
+            atoms = Atoms(positions=positions, cell=_cell_matrix(box), pbc=True)
+        i, j, d = neighbor_list("ijd", atoms, radius)
+        return _half(i, j, d)
+
+
+class MatscipyPeer(CutoffPeer):
+    """matscipy.neighbours.neighbour_list('ijd', positions=..., cell=..., pbc=...)."""
+
+    name = "matscipy"
+    module = "matscipy.neighbours"
+    dist = "matscipy"
+    description = "matscipy neighbour_list('ijd', positions=, cutoff=, cell=, pbc=)"
+
+    def search(self, positions, radius, box):
+        from matscipy.neighbours import neighbour_list
+
+        if box is None:
+            origin, cell = _open_cell(positions, radius)
+            i, j, d = neighbour_list("ijd", positions=positions, cutoff=radius, cell=cell,
+                                     pbc=[False] * 3, cell_origin=origin)
+        else:
+            i, j, d = neighbour_list("ijd", positions=positions, cutoff=radius,
+                                     cell=_cell_matrix(box), pbc=[True] * 3)
+        return _half(i, j, d)
+
+
+class VesinPeer(CutoffPeer):
+    """vesin.NeighborList(cutoff=r, full_list=False, n_threads=T).compute(...)."""
+
+    name = "vesin"
+    module = "vesin"
+    dist = "vesin"
+    description = "vesin NeighborList(cutoff, full_list=False, n_threads=T).compute(..., 'Pd')"
+    threaded = True
+    strict = True
+
+    def search(self, positions, radius, box):
+        from vesin import NeighborList
+
+        nl = NeighborList(cutoff=radius, full_list=False, n_threads=self.n_threads)
+        if box is None:
+            pairs, d = nl.compute(positions, np.zeros((3, 3)), False, quantities="Pd")
+        else:
+            pairs, d = nl.compute(positions, _cell_matrix(box), True, quantities="Pd")
+        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        return _orient(pairs[:, 0], pairs[:, 1]), d
+
+
+class FreudPeer(CutoffPeer):
+    """freud.locality.AABBQuery / LinkCell queried with r_max and exclude_ii.
+
+    freud has no pair queries in non-periodic boxes, so open systems go into a
+    periodic box padded by the radius on every side (no image comes close).
+    """
+
+    module = "freud"
+    dist = "freud-analysis"
+    threaded = True
+    strict = True
+    structure = "AABBQuery"
+
+    def unsupported(self, workload):
+        return super().unsupported(workload) or _need_orthorhombic(workload)
+
+    def search(self, positions, radius, box):
+        import freud
+
+        freud.parallel.set_num_threads(self.n_threads)
+        if box is None:
+            # freud has no pair queries in non-periodic boxes; its users pad a
+            # periodic box so that no image comes within r_max
+            origin, cell = _open_cell(positions, radius)
+            lengths = np.diag(cell) + 2.0 * radius
+            fbox = freud.box.Box(*lengths)
+            points = positions - (origin - radius) - lengths / 2.0
+        else:
+            lengths = np.asarray(box[:3], dtype=np.float64)
+            fbox = freud.box.Box(*lengths)
+            points = np.mod(positions, lengths) - lengths / 2.0
+        points = np.ascontiguousarray(points, dtype=np.float64)
+        if self.structure == "LinkCell":
+            nq = freud.locality.LinkCell(fbox, points, cell_width=radius)
+        else:
+            nq = freud.locality.AABBQuery(fbox, points)
+        nlist = nq.query(points, {"r_max": radius, "exclude_ii": True}).toNeighborList()
+        return _half(nlist.query_point_indices, nlist.point_indices, nlist.distances)
+
+
+class FreudAABB(FreudPeer):
+    name = "freud-aabb"
+    structure = "AABBQuery"
+    description = "freud AABBQuery(box, points).query(points, r_max, exclude_ii)"
+
+
+class FreudLinkCell(FreudPeer):
+    name = "freud-linkcell"
+    structure = "LinkCell"
+    description = "freud LinkCell(box, points, cell_width=r).query(points, r_max, exclude_ii)"
+
+
+class LammpsPeer(CutoffPeer):
+    """LAMMPS's own neighbour build, through lammps_bridge.neighbor_pairs."""
+
+    name = "lammps"
+    module = "lammps_bridge"
+    dist = "lammps"
+    description = "LAMMPS neighbour list via lammps_bridge.neighbor_pairs"
+
+    def missing(self):
+        why = super().missing()
+        if why:
+            return why
+        import lammps_bridge
+
+        if not hasattr(lammps_bridge, "neighbor_pairs"):
+            return "lammps_bridge.neighbor_pairs is not part of this build"
+        try:
+            importlib.import_module("lammps")
+        except Exception as exc:
+            return f"{type(exc).__name__}: {exc}"
+        return None
+
+    def search(self, positions, radius, box):
+        import lammps_bridge
+
+        pairs = lammps_bridge.neighbor_pairs(positions, radius, box=box)
+        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        return _orient(pairs[:, 0], pairs[:, 1]), None
+
+
+#: every peer the bench command knows, in report order
+PEERS = {cls.name: cls for cls in (
+    GranularSAP, GranularSAPSteady, MDANSGrid, MDAPKDTree, ScipyCKDTree, ASEPeer,
+    MatscipyPeer, VesinPeer, FreudAABB, FreudLinkCell, LammpsPeer,
+)}
+
+#: names of the granularsap adapters (the reference of the ratios)
+GRANULARSAP = ("granularsap", "granularsap-steady")
+
+
+def make_peers(names=None):
+    """Peer instances for ``names`` (all known peers when None).
+
+    Raises
+    ------
+    ValueError
+        For a name that is not a known peer.
+    """
+    if names is None:
+        names = list(PEERS)
+    unknown = [n for n in names if n not in PEERS]
+    if unknown:
+        raise ValueError(f"unknown peer {unknown[0]!r}; choose from {', '.join(PEERS)}")
+    return [PEERS[n]() for n in names]
