@@ -34,3 +34,43 @@ def brute_box_overlaps(lower, upper):
         ok = np.all((lower[i] <= upper[j]) & (lower[j] <= upper[i]), axis=1)
         out.extend((i, int(jj)) for jj in j[ok])
     return _as_pair_array(out)
+
+
+def brute_image_pairs(positions, cutoff, cell=None, pbc=(True, True, True), radii=None):
+    """Pairs ``i < j`` with some periodic image of ``j`` within reach of ``i``.
+
+    Reach is ``cutoff`` or, with ``radii``, ``r_i + r_j + cutoff``; the test is
+    ``d <= reach`` in float64.  ``cell`` is a (3, 3) matrix of cell vectors (rows),
+    ``None`` for open boundaries.  Every image combination that could matter is
+    enumerated (no minimum-image shortcut), so any cutoff and any tilt work.
+    Returns ``(pairs, distances)`` with the smallest qualifying distance.
+    """
+    pos = np.asarray(positions, dtype=np.float64)
+    n = len(pos)
+    rad = np.zeros(n) if radii is None else np.asarray(radii, dtype=np.float64)
+    reach_max = cutoff + (2 * rad.max() if n else 0.0)
+    shifts = [np.zeros(3)]
+    if cell is not None:
+        cell = np.asarray(cell, dtype=np.float64)
+        vol = abs(np.linalg.det(cell))
+        span = np.ptp(pos, axis=0).max() if n else 0.0
+        reps = []
+        for k in range(3):
+            if not pbc[k]:
+                reps.append(range(0, 1))
+                continue
+            other = np.cross(cell[(k + 1) % 3], cell[(k + 2) % 3])
+            width = vol / np.linalg.norm(other)
+            m = int(np.ceil((reach_max + 2 * span) / width)) + 1
+            reps.append(range(-m, m + 1))
+        shifts = [a * cell[0] + b * cell[1] + c * cell[2]
+                  for a in reps[0] for b in reps[1] for c in reps[2]]
+    shifts = np.array(shifts)
+    out, dist = [], []
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = np.sqrt((((pos[j] + shifts) - pos[i]) ** 2).sum(axis=1)).min()
+            if d <= rad[i] + rad[j] + cutoff:
+                out.append((i, j))
+                dist.append(d)
+    return _as_pair_array(out), np.asarray(dist, dtype=np.float64)

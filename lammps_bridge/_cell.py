@@ -1,0 +1,188 @@
+"""Periodic cells and their LAMMPS "restricted triclinic" form.
+
+LAMMPS wants a cell whose first vector lies along +x, second in the xy plane
+with positive y and third with positive z, with the origin at ``boxlo`` and
+tilt factors no larger than half the box length they refer to.  Any cell can
+be brought into that form by an isometry (a rotation, or a rotation and a
+reflection for a left-handed cell) followed by a lattice reduction, neither
+of which changes a distance or a neighbour.
+
+The mapping from the caller's frame to the LAMMPS frame goes through
+fractional coordinates, so that integer lattice shifts found in the LAMMPS
+frame can be applied to the caller's own float64 coordinates: the exact
+distance test then runs on the caller's numbers, not on rotated ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from granularsap._validate import as_coords
+
+
+def cell_from_box(box):
+    """Return ``box`` as a ``(3, 3)`` float64 cell matrix (rows are cell vectors).
+
+    Parameters
+    ----------
+    box : (6,) array_like of float or (3, 3) array_like of float
+        MDAnalysis form ``[lx, ly, lz, alpha, beta, gamma]`` (degrees) or an
+        ASE-style cell matrix.
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape, non-finite values, non-positive lengths, impossible
+        angles or a degenerate (zero-volume) cell.
+    """
+    arr = np.asarray(box)
+    if arr.dtype.kind not in "fiu":
+        raise TypeError(f"box must be an array of real numbers, got dtype {arr.dtype}")
+    arr = np.asarray(arr, dtype=np.float64)
+    if not np.isfinite(arr).all():
+        raise ValueError("box must be finite, got NaN or inf")
+    if arr.shape == (6,):
+        lx, ly, lz, alpha, beta, gamma = arr
+        if min(lx, ly, lz) <= 0:
+            raise ValueError(f"box lengths must be positive, got {arr[:3].tolist()}")
+        if not all(0 < a < 180 for a in (alpha, beta, gamma)):
+            raise ValueError(f"box angles must be in (0, 180) degrees, got {arr[3:].tolist()}")
+
+        def _cos(deg):
+            return 0.0 if deg == 90.0 else float(np.cos(np.radians(deg)))
+
+        ca, cb, cg = _cos(alpha), _cos(beta), _cos(gamma)
+        sg = 1.0 if gamma == 90.0 else float(np.sin(np.radians(gamma)))
+        cx = lz * cb
+        cy = lz * (ca - cb * cg) / sg
+        czsq = lz * lz - cx * cx - cy * cy
+        if czsq <= 0:
+            raise ValueError(f"box angles {arr[3:].tolist()} do not describe a valid cell")
+        cell = np.array([[lx, 0.0, 0.0], [ly * cg, ly * sg, 0.0], [cx, cy, np.sqrt(czsq)]])
+    elif arr.shape == (3, 3):
+        cell = arr.copy()
+    else:
+        raise ValueError("box must be [lx, ly, lz, alpha, beta, gamma] or a (3, 3) cell "
+                         f"matrix, got shape {arr.shape}")
+    vol = abs(np.linalg.det(cell))
+    scale = np.prod(np.linalg.norm(cell, axis=1))
+    if not vol > 1e-12 * scale or scale == 0:
+        raise ValueError("box must be a non-degenerate cell with positive volume, "
+                         f"got {cell.tolist()}")
+    return cell
+
+
+def as_pbc(pbc, box):
+    """Per-axis periodicity as a tuple of three bools."""
+    if box is None:
+        if pbc is None:
+            return (False, False, False)
+        flags = np.broadcast_to(np.asarray(pbc, dtype=bool), (3,))
+        if flags.any():
+            raise ValueError(f"pbc={tuple(bool(f) for f in flags)} needs a box; got box=None")
+        return (False, False, False)
+    if pbc is None:
+        return (True, True, True)
+    arr = np.asarray(pbc)
+    if arr.dtype.kind != "b":
+        raise TypeError(f"pbc must be a bool or three bools, got {pbc!r}")
+    if arr.shape not in ((), (3,)):
+        raise ValueError(f"pbc must be a bool or three bools, got shape {arr.shape}")
+    return tuple(bool(f) for f in np.broadcast_to(arr, (3,)))
+
+
+def _restricted(v):
+    """Lower-triangular LAMMPS form of the rows of ``v`` (same Gram matrix)."""
+    a, b, c = v
+    ax = np.linalg.norm(a)
+    bx = b @ a / ax
+    by = np.sqrt(max(b @ b - bx * bx, 0.0))
+    cx = c @ a / ax
+    cy = (b @ c - bx * cx) / by
+    cz = np.sqrt(max(c @ c - cx * cx - cy * cy, 0.0))
+    return np.array([[ax, 0.0, 0.0], [bx, by, 0.0], [cx, cy, cz]])
+
+
+@dataclass
+class LammpsFrame:
+    """How the caller's coordinates map onto one LAMMPS box.
+
+    ``vectors`` are the LAMMPS cell vectors written in the caller's frame (the
+    periodic ones first, reduced; then one vector per open direction, normal
+    to the periodic ones and long enough to hold every particle).  ``h`` is
+    the same cell in LAMMPS's lower-triangular form.  ``frac`` are the
+    particles' fractional coordinates in ``vectors`` before wrapping.
+    """
+
+    vectors: np.ndarray
+    h: np.ndarray
+    origin: np.ndarray
+    n_periodic: int
+    frac: np.ndarray
+
+    @property
+    def boundary(self):
+        return " ".join("p" if k < self.n_periodic else "f" for k in range(3))
+
+    def wrapped_lammps_positions(self):
+        """Positions inside the LAMMPS box, in the LAMMPS frame (boxlo = 0)."""
+        f = self.frac.copy()
+        npd = self.n_periodic
+        f[:, :npd] -= np.floor(f[:, :npd])
+        f[:, :npd][f[:, :npd] >= 1.0] = 0.0
+        return f @ self.h
+
+    def lattice_shifts(self, frac_lammps):
+        """Integer shifts K with ``frac = frac_lammps + K`` (zero on open axes)."""
+        k = np.rint(self.frac - frac_lammps)
+        k[:, self.n_periodic:] = 0.0
+        return k
+
+
+def lammps_frame(positions, cell, pbc, margin):
+    """Build the :class:`LammpsFrame` for ``positions`` in ``cell`` with ``pbc``.
+
+    ``margin`` is the free space kept between the particles and an open wall.
+    """
+    positions = as_coords(positions, "positions")
+    periodic = [k for k in range(3) if pbc[k]]
+    vecs = [cell[k].copy() for k in periodic]
+    # orthonormal directions for the open axes
+    basis = []
+    if len(vecs) == 0:
+        basis = [np.eye(3)[k] for k in range(3)]
+    elif len(vecs) == 1:
+        a = vecs[0] / np.linalg.norm(vecs[0])
+        e = np.eye(3)[int(np.argmin(np.abs(a)))]
+        u1 = e - (e @ a) * a
+        u1 /= np.linalg.norm(u1)
+        basis = [u1, np.cross(a, u1)]
+    elif len(vecs) == 2:
+        u = np.cross(vecs[0], vecs[1])
+        basis = [u / np.linalg.norm(u)]
+    origin = np.zeros(3)
+    for u in basis:
+        s = positions @ u if len(positions) else np.zeros(1)
+        lo, hi = float(s.min()) - margin, float(s.max()) + margin
+        vecs.append((hi - lo) * u)
+        origin += lo * u
+    v = np.array(vecs, dtype=np.float64)
+    # reduce tilts of the periodic part so that LAMMPS accepts them
+    h = _restricted(v)
+    npd = len(periodic)
+    if npd >= 2:
+        m = np.rint(h[1, 0] / h[0, 0])
+        v[1] -= m * v[0]
+        h = _restricted(v)
+    if npd == 3:
+        m = np.rint(h[2, 1] / h[1, 1])
+        v[2] -= m * v[1]
+        h = _restricted(v)
+        m = np.rint(h[2, 0] / h[0, 0])
+        v[2] -= m * v[0]
+        h = _restricted(v)
+    frac = np.linalg.solve(v.T, (positions - origin).T).T if len(positions) else \
+        np.empty((0, 3))
+    return LammpsFrame(vectors=v, h=h, origin=origin, n_periodic=npd, frac=frac)
