@@ -1,0 +1,346 @@
+"""Reader for LAMMPS text dumps (``dump atom`` / ``dump custom``).
+
+Why our own reader: ASE's ``lammpsrun`` reader parses every line in Python
+and keeps no radius/diameter or molecule column in a form we can rely on;
+MDAnalysis's ``LAMMPSDUMP`` reader wants a separate topology for types and
+radii, loads extra columns only on request, and stops at a truncated frame
+without saying which line was bad.  This reader streams frame by frame (one
+``numpy.loadtxt`` call per frame), keeps every column by name, reports rows in
+id order, and on a truncated or corrupt frame raises :class:`DumpFormatError`
+naming the file, the frame and the line, after yielding every good frame.
+
+Supported headers: ``ITEM: TIMESTEP``, ``ITEM: TIME``, ``ITEM: UNITS``,
+``ITEM: NUMBER OF ATOMS``, ``ITEM: BOX BOUNDS [xy xz yz] bx by bz`` (orthogonal
+and restricted triclinic) and ``ITEM: BOX BOUNDS abc origin ...`` (general
+triclinic), ``ITEM: ATOMS col1 col2 ...`` in any column order.  Coordinates
+come from ``x y z`` (as written), ``xu yu zu`` (unwrapped), ``xs ys zs``
+(scaled) or ``xsu ysu zsu`` (scaled unwrapped), preferred in that order
+unless ``coordinates=`` says otherwise.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+
+import numpy as np
+
+from ._frame import Frame
+
+__all__ = ["DumpFormatError", "count_dump_frames", "iter_lammps_dump"]
+
+COORDINATE_SETS = {
+    "x": ("x", "y", "z"),
+    "xu": ("xu", "yu", "zu"),
+    "xs": ("xs", "ys", "zs"),
+    "xsu": ("xsu", "ysu", "zsu"),
+}
+_SCALED = {"xs", "xsu"}
+_INT_COLUMNS = {"id", "type", "mol", "molecule", "ix", "iy", "iz", "proc", "procp1"}
+
+
+class DumpFormatError(ValueError):
+    """A LAMMPS dump is truncated or malformed; the message names file, frame and line."""
+
+    def __init__(self, path, frame, line, message):
+        self.path, self.frame, self.line = path, frame, line
+        super().__init__(f"{path}: frame {frame}, line {line}: {message}")
+
+
+def count_dump_frames(path) -> int:
+    """Number of ``ITEM: TIMESTEP`` headers in a dump (a fast byte scan)."""
+    count = 0
+    tail = b""
+    key = b"ITEM: TIMESTEP"
+    with open(path, "rb") as fh:
+        while True:
+            chunk = fh.read(1 << 24)
+            if not chunk:
+                break
+            buf = tail + chunk
+            count += buf.count(key)
+            tail = buf[-(len(key) - 1):]
+            count -= tail.count(key)  # never double count across chunks
+    return count
+
+
+class _Lines:
+    """Line source that counts 1-based line numbers."""
+
+    def __init__(self, fh):
+        self.fh = fh
+        self.lineno = 0
+
+    def next(self):
+        line = self.fh.readline()
+        if not line:
+            return None
+        self.lineno += 1
+        return line
+
+    def take(self, n):
+        lines = []
+        for _ in range(n):
+            line = self.fh.readline()
+            if not line:
+                break
+            lines.append(line)
+        self.lineno += len(lines)
+        return lines
+
+
+def _lammps_cell(bounds, tilt, general):
+    """(cell rows, origin) from the three BOX BOUNDS lines."""
+    if general:
+        rows = np.array(bounds, dtype=np.float64)  # ax ay az ox / bx by bz oy / cx cy cz oz
+        return rows[:, :3].copy(), rows[:, 3].copy()
+    (xlob, xhib), (ylob, yhib), (zlob, zhib) = bounds
+    xy, xz, yz = tilt
+    xlo = xlob - min(0.0, xy, xz, xy + xz)
+    xhi = xhib - max(0.0, xy, xz, xy + xz)
+    ylo = ylob - min(0.0, yz)
+    yhi = yhib - max(0.0, yz)
+    cell = np.array([[xhi - xlo, 0.0, 0.0], [xy, yhi - ylo, 0.0], [xz, yz, zhib - zlob]])
+    return cell, np.array([xlo, ylo, zlob])
+
+
+def _parse_atoms(lines, ncol, path, frame, first_line):
+    """Parse atom rows into an (n, ncol) float array and a list of string columns."""
+    try:
+        data = np.loadtxt(lines, dtype=np.float64, ndmin=2, comments=None)
+    except ValueError:
+        data = None
+    if data is not None and data.shape[1] == ncol:
+        return data, None
+    # slow path: locate the bad row, or fall back to string columns
+    rows = []
+    for k, line in enumerate(lines):
+        parts = line.split()
+        if len(parts) != ncol:
+            raise DumpFormatError(path, frame, first_line + k,
+                                  f"expected {ncol} values on an atom row, got {len(parts)}")
+        rows.append(parts)
+    return None, np.array(rows, dtype=object)
+
+
+def _to_float(col, path, frame, first_line, name):
+    try:
+        return col.astype(np.float64)
+    except ValueError:
+        for k, v in enumerate(col):
+            try:
+                float(v)
+            except ValueError:
+                raise DumpFormatError(path, frame, first_line + k,
+                                      f"column {name!r}: {v!r} is not a number") from None
+        raise  # pragma: no cover
+
+
+def iter_lammps_dump(path, *, frames=None, coordinates=None):
+    """Yield :class:`Frame` objects from a LAMMPS text dump.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    frames : slice, optional
+        Frames to yield (non-negative start/stop); skipped frames are not parsed.
+    coordinates : {"x", "xu", "xs", "xsu"}, optional
+        Which coordinate columns to use; default the first present in that order.
+
+    Yields
+    ------
+    Frame
+        Rows in increasing ``id`` order.
+
+    Raises
+    ------
+    DumpFormatError
+        After the last good frame, if the file is truncated or malformed.
+    """
+    path = os.fspath(path)
+    if coordinates is not None and coordinates not in COORDINATE_SETS:
+        raise ValueError(f"unknown coordinates {coordinates!r}; choose one of "
+                         f"{', '.join(map(repr, COORDINATE_SETS))}")
+    sel = frames if frames is not None else slice(None)
+    start, stop, step = sel.start or 0, sel.stop, sel.step or 1
+    if start < 0 or (stop is not None and stop < 0) or step <= 0:
+        raise ValueError(f"frames must be a slice with non-negative start/stop and positive "
+                         f"step for a LAMMPS dump, got {sel}")
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        src = _Lines(fh)
+        index = -1
+        line = src.next()
+        while line is not None:
+            if not line.strip():
+                line = src.next()
+                continue
+            index += 1
+            if stop is not None and index >= stop:
+                return
+            frame_start = src.lineno
+            header = {"timestep": None, "time": None, "natoms": None, "cell": None,
+                      "pbc": np.zeros(3, bool), "origin": np.zeros(3)}
+
+            def fail(msg, line_no=None, _index=index):
+                raise DumpFormatError(path, _index, src.lineno if line_no is None else line_no,
+                                      msg)
+
+            # ---- header items up to ITEM: ATOMS
+            while True:
+                if line is None:
+                    fail("file ends inside the frame header (truncated)")
+                text = line.strip()
+                if not text.startswith("ITEM:"):
+                    fail(f"expected an 'ITEM:' line, got {text[:40]!r}")
+                item = text[5:].strip()
+                if item.startswith("TIMESTEP"):
+                    val = src.next()
+                    try:
+                        header["timestep"] = int(val.split()[0])
+                    except (AttributeError, ValueError, IndexError):
+                        fail("bad or missing TIMESTEP value")
+                elif item.startswith("TIME"):
+                    val = src.next()
+                    try:
+                        header["time"] = float(val.split()[0])
+                    except (AttributeError, ValueError, IndexError):
+                        fail("bad or missing TIME value")
+                elif item.startswith("UNITS"):
+                    src.next()
+                elif item.startswith("NUMBER OF ATOMS"):
+                    val = src.next()
+                    try:
+                        header["natoms"] = int(val.split()[0])
+                    except (AttributeError, ValueError, IndexError):
+                        fail("bad or missing NUMBER OF ATOMS value")
+                    if header["natoms"] < 0:
+                        fail(f"negative NUMBER OF ATOMS {header['natoms']}")
+                elif item.startswith("BOX BOUNDS"):
+                    words = item.split()[2:]
+                    general = "abc" in words
+                    triclinic = "xy" in words or general
+                    flags = [w for w in words if w not in ("xy", "xz", "yz", "abc", "origin")]
+                    rows = []
+                    for _ in range(3):
+                        val = src.next()
+                        try:
+                            rows.append([float(v) for v in val.split()])
+                        except (AttributeError, ValueError):
+                            fail("bad or missing BOX BOUNDS line")
+                    want = 4 if general else (3 if triclinic else 2)
+                    if any(len(r) < want for r in rows):
+                        fail(f"BOX BOUNDS lines need {want} numbers")
+                    if general:
+                        cell, origin = _lammps_cell(rows, None, True)
+                    else:
+                        tilt = [r[2] for r in rows] if triclinic else [0.0, 0.0, 0.0]
+                        cell, origin = _lammps_cell([r[:2] for r in rows], tilt, False)
+                    header["cell"], header["origin"] = cell, origin
+                    if len(flags) == 3:
+                        header["pbc"] = np.array([f == "pp" for f in flags])
+                    else:  # old dumps without flags: LAMMPS wrote them for periodic boxes
+                        header["pbc"] = np.ones(3, bool)
+                elif item.startswith("ATOMS"):
+                    names = item.split()[1:]
+                    break
+                else:
+                    fail(f"unknown dump item {item[:40]!r}")
+                line = src.next()
+            natoms = header["natoms"]
+            if natoms is None:
+                fail("ITEM: ATOMS before ITEM: NUMBER OF ATOMS")
+            if len(set(names)) != len(names):
+                fail(f"duplicate column names in ITEM: ATOMS {' '.join(names)}")
+            first_row = src.lineno + 1
+            selected = index >= start and (index - start) % step == 0
+            if not selected:
+                got = 0
+                for _ in range(natoms):
+                    if src.next() is None:
+                        break
+                    got += 1
+                if got != natoms:
+                    fail(f"truncated: expected {natoms} atom rows, got {got}")
+                line = src.next()
+                continue
+            rows = src.take(natoms)
+            if len(rows) != natoms:
+                fail(f"truncated: expected {natoms} atom rows, got {len(rows)}")
+            yield _build_frame(path, index, names, rows, header, coordinates, first_row,
+                               frame_start)
+            line = src.next()
+
+
+def _build_frame(path, index, names, rows, header, coordinates, first_row, frame_start):
+    ncol = len(names)
+    data, strings = _parse_atoms(rows, ncol, path, index, first_row)
+    columns = {}
+    for k, name in enumerate(names):
+        if data is not None:
+            col = data[:, k]
+        else:
+            col = strings[:, k]
+            if name not in ("element",):
+                try:
+                    col = _to_float(col, path, index, first_row, name)
+                except DumpFormatError:
+                    if name in _INT_COLUMNS or name in ("x", "y", "z") or name.startswith("x"):
+                        raise
+                    col = col.astype(str)
+            else:
+                col = col.astype(str)
+        if name in _INT_COLUMNS and col.dtype.kind == "f":
+            ints = col.astype(np.int64)
+            if not np.array_equal(ints, col):
+                raise DumpFormatError(path, index, first_row, f"column {name!r} is not integer")
+            col = ints
+        columns[name] = col
+    if coordinates is None:
+        coordinates = next((c for c, cols in COORDINATE_SETS.items()
+                            if all(n in columns for n in cols)), None)
+        if coordinates is None:
+            raise DumpFormatError(path, index, first_row - 1,
+                                  "no coordinate columns (x y z, xu yu zu, xs ys zs or "
+                                  f"xsu ysu zsu) in ITEM: ATOMS {' '.join(names)}")
+    cols = COORDINATE_SETS[coordinates]
+    if not all(n in columns for n in cols):
+        raise DumpFormatError(path, index, first_row - 1,
+                              f"coordinates={coordinates!r} needs columns {' '.join(cols)}")
+    positions = np.column_stack([columns[n] for n in cols]).astype(np.float64)
+    cell = header["cell"]
+    if coordinates in _SCALED:
+        if cell is None:
+            raise DumpFormatError(path, index, first_row - 1, "scaled coordinates without a box")
+        positions = header["origin"] + positions @ cell
+    n = len(rows)
+    ids = columns.get("id")
+    ids = np.arange(1, n + 1, dtype=np.int64) if ids is None else ids
+    if len(np.unique(ids)) != n:
+        raise DumpFormatError(path, index, first_row, "duplicate atom ids")
+    radius = None
+    if "radius" in columns:
+        radius = columns["radius"].astype(np.float64)
+    elif "diameter" in columns:
+        radius = 0.5 * columns["diameter"].astype(np.float64)
+    mol = columns.get("mol", columns.get("molecule"))
+    types = columns.get("type", columns.get("element"))
+    frame = Frame(index=index, positions=np.ascontiguousarray(positions), ids=ids, cell=cell,
+                  pbc=header["pbc"], origin=header["origin"], step=header["timestep"],
+                  time=header["time"], types=types, radius=radius, molecule=mol,
+                  columns=columns, source=path)
+    return frame.sorted_by_id()
+
+
+_DUMP_START = re.compile(r"^\s*ITEM:")
+
+
+def looks_like_dump(path) -> bool:
+    """True if the file's first non-blank line starts with ``ITEM:``."""
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                if line.strip():
+                    return bool(_DUMP_START.match(line))
+    except (OSError, UnicodeDecodeError):
+        return False
+    return False

@@ -1,0 +1,343 @@
+"""Contacts of every frame of a trajectory into one HDF5 file, serially or with Dask.
+
+The reader runs in the calling process; each frame's contacts are computed by
+:func:`frame_contacts` (in the same process, or as a Dask task on a
+``dask.distributed`` cluster) and written in frame order by
+:class:`~granularsap.io.hdf5.ContactsWriter`.  At most a few frames per worker
+are in flight, so memory stays bounded whatever the trajectory length.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._frame import Frame
+from .hdf5 import ContactsWriter, FrameResult, partial_path
+from .readers import count_frames, iter_frames, resolve_format
+
+__all__ = ["ContactParams", "compute_contacts", "engine_cell", "frame_contacts"]
+
+
+@dataclass(frozen=True)
+class ContactParams:
+    """What counts as a contact.
+
+    Exactly one of ``cutoff`` (neighbour pairs with ``d <= cutoff``), ``radius``
+    (spheres of one radius) or ``radius_column`` (per-particle radii from the
+    file: ``"radius"``, or ``"diameter"`` which is halved, or any other column
+    holding radii) applies; with none, the file's radius/diameter column is used.
+    Sphere contacts are pairs with ``d <= r_i + r_j + skin``.
+    """
+
+    cutoff: float | None = None
+    radius: float | None = None
+    radius_column: str | None = None
+    skin: float = 0.0
+    clumps: bool = False
+    distances: bool = False
+    n_threads: int | None = None
+
+    def __post_init__(self):
+        given = [n for n in ("cutoff", "radius", "radius_column") if getattr(self, n) is not None]
+        if len(given) > 1:
+            raise ValueError(f"give only one of cutoff, radius and radius_column, got "
+                             f"{' and '.join(given)}")
+        for name in ("cutoff", "radius", "skin"):
+            val = getattr(self, name)
+            if val is not None and (not np.isfinite(val) or val < 0):
+                raise ValueError(f"{name} must be a finite non-negative number, got {val}")
+        if self.cutoff is not None and (self.clumps or self.skin):
+            raise ValueError("cutoff mode takes no skin and no clumps; use radius or "
+                             "radius_column for sphere contacts")
+        if self.clumps and self.distances:
+            raise ValueError("distances are not available with clumps")
+
+    @property
+    def mode(self) -> str:
+        if self.cutoff is not None:
+            return "cutoff"
+        return "clumps" if self.clumps else "spheres"
+
+    def describe(self) -> dict:
+        """The parameters that define the result (not how it is computed)."""
+        d = dataclasses.asdict(self)
+        d.pop("n_threads")
+        d["mode"] = self.mode
+        return d
+
+
+def engine_cell(frame: Frame, reach: float):
+    """The cell to give the engine: None, or a (3, 3) matrix.
+
+    Non-periodic directions of a partly periodic box (LAMMPS ``f``/``s``/``m``
+    boundaries, ASE ``pbc=False`` on an axis) get a cell vector normal to the
+    periodic ones and long enough (more than twice the particles' extent plus
+    ``reach``) that no pair ever meets a periodic image along it.
+    """
+    if frame.cell is None or not np.any(frame.pbc):
+        return None
+    cell = np.array(frame.cell, dtype=np.float64)
+    if np.all(frame.pbc):
+        return cell
+    pos = frame.positions
+    extent = float(np.linalg.norm(pos.max(axis=0) - pos.min(axis=0))) if len(pos) else 0.0
+    length = 2.0 * (extent + reach) + 1.0 + float(np.abs(cell).max())
+    periodic = [k for k in range(3) if frame.pbc[k]]
+    basis = [cell[k] / np.linalg.norm(cell[k]) for k in periodic]
+    new = cell.copy()
+    for k in range(3):
+        if frame.pbc[k]:
+            continue
+        if len(basis) == 2:
+            v = np.cross(basis[0], basis[1])
+        else:  # Gram-Schmidt against what we have, starting from the original direction
+            v = cell[k] if np.linalg.norm(cell[k]) > 0 else np.eye(3)[k]
+            for b in basis:
+                v = v - np.dot(v, b) * b
+            if np.linalg.norm(v) < 1e-12:
+                v = np.eye(3)[k]
+                for b in basis:
+                    v = v - np.dot(v, b) * b
+        v = v / np.linalg.norm(v)
+        basis.append(v)
+        new[k] = length * v
+    if np.linalg.det(new) < 0:
+        k = next(k for k in range(3) if not frame.pbc[k])
+        new[k] = -new[k]
+    return new
+
+
+def _radii(frame: Frame, params: ContactParams):
+    if params.radius is not None:
+        return np.full(frame.n_particles, params.radius, dtype=np.float64)
+    if params.radius_column is not None:
+        name = params.radius_column
+        if name == "diameter":
+            return 0.5 * np.asarray(frame.column("diameter"), dtype=np.float64)
+        return np.asarray(frame.column(name), dtype=np.float64)
+    if frame.radius is None:
+        raise ValueError(f"{frame.source} frame {frame.index} has no radius or diameter column; "
+                         "give a cutoff, a radius or a radius column")
+    return frame.radius
+
+
+def lean_frame(frame: Frame, params: ContactParams) -> Frame:
+    """A copy with only what :func:`frame_contacts` needs (cheap to ship to a worker)."""
+    radius = None if params.cutoff is not None else _radii(frame, params)
+    molecule = frame.molecule if params.clumps else None
+    if params.clumps and molecule is None:
+        raise ValueError(f"{frame.source} frame {frame.index} has no molecule (mol) column "
+                         "for clumps")
+    return Frame(index=frame.index, positions=frame.positions, ids=frame.ids, cell=frame.cell,
+                 pbc=frame.pbc, step=frame.step, time=frame.time, radius=radius,
+                 molecule=molecule, source=frame.source)
+
+
+def _sort_rows(pairs, *extra):
+    order = np.lexsort((pairs[:, 1], pairs[:, 0]))
+    return (pairs[order], *(None if e is None else e[order] for e in extra))
+
+
+def frame_contacts(frame: Frame, params: ContactParams) -> FrameResult:
+    """Contacts of one frame as particle-id pairs (rows sorted).
+
+    Parameters
+    ----------
+    frame : Frame
+    params : ContactParams
+
+    Returns
+    -------
+    FrameResult
+    """
+    import granularsap
+
+    t0 = time.perf_counter()
+    pos = frame.positions
+    distances = clump_pairs = None
+    if params.cutoff is not None:
+        box = engine_cell(frame, params.cutoff)
+        out = granularsap.neighbor_pairs(pos, params.cutoff, box=box, n_threads=params.n_threads,
+                                         return_distances=params.distances)
+    else:
+        radii = frame.radius if frame.radius is not None else _radii(frame, params)
+        reach = 2.0 * float(radii.max()) + params.skin if len(radii) else 0.0
+        box = engine_cell(frame, reach)
+        if params.clumps:
+            out, clump_pairs = granularsap.clump_contacts(pos, radii, frame.molecule,
+                                                          skin=params.skin, box=box,
+                                                          n_threads=params.n_threads)
+        else:
+            out = granularsap.sphere_contacts(pos, radii, skin=params.skin, box=box,
+                                              n_threads=params.n_threads,
+                                              return_distances=params.distances)
+    if params.distances:
+        pairs, distances = out
+        distances = np.asarray(distances, dtype=np.float64)
+    else:
+        pairs = out
+    pairs = frame.ids[np.asarray(pairs, dtype=np.int64).reshape(-1, 2)]
+    pairs = np.sort(pairs, axis=1)  # ids ascending within a row
+    pairs, distances = _sort_rows(pairs, distances)
+    if clump_pairs is not None:
+        clump_pairs = np.sort(np.asarray(clump_pairs, dtype=np.int64).reshape(-1, 2), axis=1)
+        (clump_pairs,) = _sort_rows(clump_pairs)
+    cell = np.full((3, 3), np.nan) if frame.cell is None else np.asarray(frame.cell, np.float64)
+    return FrameResult(index=frame.index, step=frame.step, time=frame.time,
+                       n_particles=frame.n_particles, cell=cell,
+                       pbc=np.asarray(frame.pbc, dtype=bool), pairs=pairs, distances=distances,
+                       clump_pairs=clump_pairs, seconds=time.perf_counter() - t0)
+
+
+def _frames_text(frames: slice) -> str:
+    return ":".join("" if v is None else str(v) for v in (frames.start, frames.stop, frames.step))
+
+
+class _DaskRunner:
+    """Submit frames to a dask.distributed cluster, hand results back in order."""
+
+    def __init__(self, workers=None, scheduler=None, n_threads=None):
+        from distributed import Client, LocalCluster
+
+        self.cluster = None
+        if scheduler is not None:
+            self.client = Client(scheduler)
+        else:
+            self.cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1,
+                                        processes=True, dashboard_address=None)
+            self.client = Client(self.cluster)
+        n = len(self.client.scheduler_info().get("workers", {})) or int(workers or 1)
+        self.window = 2 * n + 1
+
+    def map_ordered(self, frames, params):
+        pending = collections.deque()
+        for frame in frames:
+            data = self.client.scatter(frame)
+            pending.append(self.client.submit(frame_contacts, data, params, pure=False))
+            if len(pending) >= self.window:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
+
+    def close(self):
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+def compute_contacts(trajectory, output, params: ContactParams, *, format=None, topology=None,
+                     frames=None, resume=True, overwrite=False, workers=None, scheduler=None,
+                     progress=None, on_resume=None):
+    """Write the contacts of every selected frame of ``trajectory`` to ``output``.
+
+    Parameters
+    ----------
+    trajectory : str or os.PathLike
+    output : str or os.PathLike
+        HDF5 file to write (schema in :mod:`granularsap.io.hdf5`).
+    params : ContactParams
+    format, topology
+        See :func:`iter_frames`.
+    frames : slice, optional
+        Non-negative ``start:stop:step`` selection of trajectory frames.
+    resume : bool
+        Continue an interrupted run (``output + '.partial'``) with the same
+        parameters instead of starting over.
+    overwrite : bool
+        Replace an existing complete ``output``.
+    workers : int, optional
+        Start a local Dask cluster with this many worker processes.
+    scheduler : str, optional
+        Address of an existing ``dask.distributed`` scheduler.
+    progress : object with ``update(n)`` and a writable ``total``, optional
+        Told about every frame written (e.g. a ``tqdm`` bar).
+    on_resume : callable, optional
+        Called with ``(n_frames_already_done, reason_or_None)`` after the
+        partial file is examined.
+
+    Returns
+    -------
+    dict
+        ``frames``, ``contacts``, ``seconds`` and a ``timing`` breakdown.
+    """
+    trajectory = os.fspath(trajectory)
+    output = os.fspath(output)
+    frames = slice(None) if frames is None else frames
+    start, stop, step = frames.start or 0, frames.stop, frames.step or 1
+    if start < 0 or (stop is not None and stop < 0) or step <= 0:
+        raise ValueError(f"frames must be START:STOP:STEP with non-negative START/STOP and "
+                         f"positive STEP, got {_frames_text(frames)}")
+    if os.path.exists(output) and not overwrite:
+        raise FileExistsError(f"{output} already exists; remove it or pass overwrite")
+    if not os.path.exists(trajectory):
+        raise FileNotFoundError(f"trajectory {trajectory!r} does not exist")
+    backend, sub = resolve_format(trajectory, format, topology)
+    described = {
+        "source": os.path.abspath(trajectory),
+        "source_size": os.path.getsize(trajectory),
+        "source_format": backend if sub is None else f"{backend}:{sub}",
+        "topology": None if topology is None else os.path.abspath(topology),
+        "frames": _frames_text(slice(start, stop, step)),
+        **params.describe(),
+    }
+    writer = ContactsWriter(output, described, distances=params.distances,
+                            clumps=params.clumps, resume=resume)
+    done = writer.n_frames
+    if on_resume is not None:
+        on_resume(done, writer.discarded_reason)
+    timing = {"read": 0.0, "compute": 0.0, "write": 0.0}
+    runner = None
+    t_start = time.perf_counter()
+    n_contacts = 0
+    try:
+        if progress is not None:
+            try:
+                total = count_frames(trajectory, format, topology=topology)
+            except Exception:  # noqa: BLE001 - a progress total is a nicety
+                total = None
+            if total is not None:
+                end = total if stop is None else min(stop, total)
+                progress.total = max(0, -(-(end - start) // step))
+                progress.update(done)
+        todo = slice(start + done * step, stop, step)
+        source = iter_frames(trajectory, format, frames=todo, topology=topology)
+
+        def timed_frames():
+            while True:
+                t0 = time.perf_counter()
+                try:
+                    frame = next(source)
+                except StopIteration:
+                    return
+                frame = lean_frame(frame, params)
+                timing["read"] += time.perf_counter() - t0
+                yield frame
+
+        if workers is None and scheduler is None:
+            results = (frame_contacts(fr, params) for fr in timed_frames())
+        else:
+            runner = _DaskRunner(workers=workers, scheduler=scheduler)
+            results = runner.map_ordered(timed_frames(), params)
+        for res in results:
+            timing["compute"] += res.seconds
+            t0 = time.perf_counter()
+            writer.append(res)
+            timing["write"] += time.perf_counter() - t0
+            n_contacts += len(res.pairs)
+            if progress is not None:
+                progress.update(1)
+        timing["wall"] = time.perf_counter() - t_start
+        timing["frames_this_run"] = writer.n_frames - done
+        writer.finish(timing)
+    finally:
+        if runner is not None:
+            runner.close()
+        writer.close()
+    return {"frames": writer.n_frames, "resumed_from": done, "contacts_this_run": n_contacts,
+            "timing": timing, "output": output, "partial": partial_path(output)}

@@ -1,0 +1,186 @@
+"""``iter_frames``: one way to read LAMMPS dumps and anything ASE or MDAnalysis reads.
+
+LAMMPS text dumps go through our own streaming reader (see
+:mod:`granularsap.io.lammps_dump` for why).  Everything else is handed to
+MDAnalysis (when a topology is given, or for formats only it reads, such as
+DCD and XTC) or to ASE (``.traj``, extxyz, CIF, ...): their readers are
+mature and we only translate their frames into :class:`Frame`.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from ._frame import Frame, box_to_cell
+from .lammps_dump import count_dump_frames, iter_lammps_dump, looks_like_dump
+
+__all__ = ["count_frames", "iter_frames", "resolve_format"]
+
+_DUMP_SUFFIXES = {".dump", ".lammpstrj", ".lammpsdump"}
+#: trajectory formats only MDAnalysis reads (ASE reads .xyz, .traj, .extxyz, .cif, .pdb ...)
+_MDA_SUFFIXES = {".dcd", ".xtc", ".trr", ".nc", ".ncdf", ".h5md", ".gro", ".tng", ".lammpsdata",
+                 ".data", ".psf", ".tpr", ".crd", ".mol2", ".pqr", ".trj", ".mdcrd", ".chk"}
+FORMATS = ("lammps-dump", "ase", "mdanalysis")
+
+
+def resolve_format(path, format=None, topology=None):
+    """Return ``(backend, backend_format)``; backend is one of :data:`FORMATS`."""
+    if format is not None:
+        name, _, sub = str(format).partition(":")
+        name = name.lower()
+        if name in ("lammps-dump", "lammpsdump", "lammps_dump", "dump"):
+            return "lammps-dump", None
+        if name in ("ase", "mdanalysis", "mda"):
+            return ("mdanalysis" if name == "mda" else name), (sub or None)
+        raise ValueError(f"unknown format {format!r}; choose one of 'lammps-dump', 'ase', "
+                         "'mdanalysis', 'ase:<ase format>' or 'mdanalysis:<MDAnalysis format>'")
+    suffix = os.path.splitext(os.fspath(path))[1].lower()
+    if topology is not None:
+        return "mdanalysis", None
+    if suffix in _DUMP_SUFFIXES or looks_like_dump(path):
+        return "lammps-dump", None
+    if suffix in _MDA_SUFFIXES:
+        return "mdanalysis", None
+    return "ase", None
+
+
+def iter_frames(path, format=None, *, frames=None, topology=None, coordinates=None, **kwargs):
+    """Yield the frames of a trajectory, particles in id order.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        LAMMPS text dump, or any file ASE or MDAnalysis can read.
+    format : str, optional
+        ``"lammps-dump"``, ``"ase"``, ``"mdanalysis"``, or ``"ase:<fmt>"`` /
+        ``"mdanalysis:<fmt>"`` to pass a format to that library.  Default: by
+        suffix and content (dumps start with ``ITEM:``; DCD/XTC/... go to
+        MDAnalysis; the rest to ASE).
+    frames : slice, optional
+        Which frames to read (default all).  Frames outside are skipped without
+        being parsed where the reader allows.
+    topology : str, optional
+        Topology for MDAnalysis (e.g. a PSF, PDB or LAMMPS data file for a DCD).
+    coordinates : {"x", "xu", "xs", "xsu"}, optional
+        LAMMPS dumps only: which coordinate columns to use.
+    **kwargs
+        Passed to ``MDAnalysis.Universe`` or ``ase.io.iread``.
+
+    Yields
+    ------
+    Frame
+
+    Raises
+    ------
+    granularsap.io.DumpFormatError
+        After the good frames of a truncated or corrupt LAMMPS dump.
+    FileNotFoundError
+        If ``path`` does not exist.
+
+    Examples
+    --------
+    >>> from granularsap.io import iter_frames
+    >>> for frame in iter_frames("pour.dump"):          # doctest: +SKIP
+    ...     print(frame.step, frame.n_particles, frame.box)
+    """
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"trajectory {path!r} does not exist")
+    if frames is None:
+        frames = slice(None)
+    if not isinstance(frames, slice):
+        raise TypeError(f"frames must be a slice, got {type(frames).__name__}")
+    backend, sub = resolve_format(path, format, topology)
+    if backend == "lammps-dump":
+        if kwargs:
+            raise TypeError(f"unexpected arguments for a LAMMPS dump: {', '.join(kwargs)}")
+        yield from iter_lammps_dump(path, frames=frames, coordinates=coordinates)
+    elif backend == "mdanalysis":
+        yield from _iter_mdanalysis(path, sub, frames, topology, kwargs)
+    else:
+        yield from _iter_ase(path, sub, frames, kwargs)
+
+
+def count_frames(path, format=None, *, topology=None, **kwargs):
+    """Number of frames in a trajectory (None if it cannot be known cheaply)."""
+    backend, sub = resolve_format(path, format, topology)
+    if backend == "lammps-dump":
+        return count_dump_frames(path)
+    if backend == "mdanalysis":
+        return len(_universe(path, sub, topology, kwargs).trajectory)
+    return None
+
+
+def _universe(path, sub, topology, kwargs):
+    import MDAnalysis as mda
+
+    if sub is not None:
+        kwargs = {"format": sub, **kwargs}
+    if topology is not None:
+        return mda.Universe(topology, path, **kwargs)
+    return mda.Universe(path, **kwargs)
+
+
+def _iter_mdanalysis(path, sub, frames, topology, kwargs):
+    u = _universe(path, sub, topology, kwargs)
+    atoms = u.atoms
+    ids = np.asarray(atoms.ids, dtype=np.int64)
+    types = np.asarray(atoms.types) if hasattr(atoms, "types") else None
+    radius = None
+    if hasattr(atoms, "radii"):
+        radius = np.asarray(atoms.radii, dtype=np.float64)
+    molecule = None
+    if hasattr(atoms, "molnums"):
+        molecule = np.asarray(atoms.molnums, dtype=np.int64)
+    for ts in u.trajectory[frames]:
+        dims = ts.dimensions
+        cell = None
+        if dims is not None and np.all(np.asarray(dims[:3]) > 0):
+            cell = box_to_cell(dims)
+        step = ts.data.get("step")
+        frame = Frame(index=int(ts.frame), positions=np.array(atoms.positions, dtype=np.float64),
+                      ids=ids.copy(), cell=cell, pbc=np.full(3, cell is not None),
+                      step=None if step is None else int(step), time=float(ts.time),
+                      types=types, radius=radius, molecule=molecule, source=path)
+        yield frame.sorted_by_id()
+
+
+def _iter_ase(path, sub, frames, kwargs):
+    import ase.io
+
+    start = frames.start or 0
+    step = frames.step or 1
+    index = slice(frames.start, frames.stop, frames.step)
+    for k, atoms in enumerate(ase.io.iread(path, index=index, format=sub, **kwargs)):
+        n = len(atoms)
+        arrays = atoms.arrays
+        ids = np.asarray(arrays["id"], dtype=np.int64) if "id" in arrays else np.arange(n)
+        cell = None
+        if atoms.cell.rank == 3:
+            cell = np.array(atoms.cell[:], dtype=np.float64)
+        pbc = np.asarray(atoms.pbc, dtype=bool) if cell is not None else np.zeros(3, bool)
+        radius = None
+        for key in ("radius", "radii"):
+            if key in arrays:
+                radius = np.asarray(arrays[key], dtype=np.float64)
+        if radius is None and "diameter" in arrays:
+            radius = 0.5 * np.asarray(arrays["diameter"], dtype=np.float64)
+        molecule = None
+        for key in ("mol-id", "mol", "molecule", "mol_id"):
+            if key in arrays:
+                molecule = np.asarray(arrays[key], dtype=np.int64)
+        skip = {"positions", "numbers"}
+        columns = {key: np.asarray(v) for key, v in arrays.items()
+                   if key not in skip and np.asarray(v).ndim == 1}
+        info = atoms.info
+        step_val = info.get("timestep", info.get("step"))
+        time_val = info.get("time")
+        frame = Frame(index=start + k * step if start >= 0 else k,
+                      positions=np.array(atoms.positions, dtype=np.float64), ids=ids, cell=cell,
+                      pbc=pbc, step=None if step_val is None else int(step_val),
+                      time=None if time_val is None else float(time_val),
+                      types=np.asarray(atoms.numbers), radius=radius, molecule=molecule,
+                      columns=columns, source=path)
+        yield frame.sorted_by_id()
