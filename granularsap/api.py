@@ -1,30 +1,357 @@
-"""Public entry points of the engine (interim brute-force version)."""
+"""Public entry points of the box broad phase: validate, then call kernels.
+
+``SweepAndPrune`` is the stateful engine of Capannini & Larsson's parallel
+bi-dimensional Sweep and Prune; ``box_overlaps`` is one call of a fresh
+engine.  The engine keeps, between frames, everything temporal coherence
+allows: the bucket boundaries of the parallel sort (Algorithm 2), the sweep
+axes chosen by the dispersion heuristic (Section 5), the expected number of
+pairs per partition, and every working buffer (so steady-state frames write
+into memory that is already mapped).
+"""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
+from ._numba import num_threads
 from ._validate import as_coords, check_n_threads
+from .kernels import radixsort as rs
+from .kernels import succtree as st
+from .kernels import sweep as sw
+
+_AXIS_NAMES = {"x": 0, "y": 1, "z": 2}
+#: Endpoints per sort bucket below which fewer buckets are used.
+_MIN_BUCKET = 256
+#: Buckets of the sort (Algorithm 2's m): at least this many, so that the
+#: dispersion D can see clustering (Section 5) ...
+_MIN_BUCKETS = 16
+#: ... and this many per thread, so that buckets balance across threads.
+_BUCKETS_PER_THREAD = 8
+#: Boxes below which the sequential path is used (parallel start-up dominates).
+_PARALLEL_MIN = 4096
+MAX_BOXES = (1 << 30) - 1
 
 
-def box_overlaps(lower, upper, *, n_threads=None):
+def _parse_axes(axes):
+    if isinstance(axes, str) and axes == "auto":
+        return (0, 1), True
+    msg = ("axes must be 'auto' or two distinct axes such as (0, 1) or 'xz', "
+           f"got {axes!r}")
+    try:
+        if isinstance(axes, str):
+            if len(axes) != 2 or any(a not in _AXIS_NAMES for a in axes.lower()):
+                raise ValueError(msg)
+            pair = tuple(_AXIS_NAMES[a] for a in axes.lower())
+        else:
+            pair = tuple(int(a) for a in axes)
+            if any(not float(a).is_integer() for a in axes):
+                raise ValueError(msg)
+    except (TypeError, ValueError):
+        raise ValueError(msg) from None
+    if len(pair) != 2 or pair[0] == pair[1] or not all(0 <= a <= 2 for a in pair):
+        raise ValueError(msg)
+    return pair, False
+
+
+def _check_boxes(lower, upper):
     lower = as_coords(lower, "lower")
     upper = as_coords(upper, "upper")
-    check_n_threads(n_threads)
-    n = len(lower)
-    out = []
-    for i in range(n):
-        j = np.arange(i + 1, n)
-        ok = np.all((lower[i] <= upper[j]) & (lower[j] <= upper[i]), axis=1)
-        out.append(np.stack([np.full(ok.sum(), i), j[ok]], axis=1))
-    if not out:
-        return np.empty((0, 2), np.int64)
-    return np.concatenate(out).astype(np.int64)
+    if lower.shape[0] != upper.shape[0]:
+        raise ValueError("lower and upper must have the same number of rows, got "
+                         f"{lower.shape[0]} and {upper.shape[0]}")
+    if lower.shape[0] > MAX_BOXES:
+        raise ValueError(f"at most {MAX_BOXES} boxes are supported, got {lower.shape[0]}")
+    bad = lower > upper
+    if bad.any():
+        i, a = np.argwhere(bad)[0]
+        raise ValueError(f"lower must not exceed upper, got lower={lower[i, a]!r} > "
+                         f"upper={upper[i, a]!r} at box {i}, axis {a}")
+    return lower, upper
 
 
 class SweepAndPrune:
-    def __init__(self, *, axes="auto", n_threads=None):
-        self.n_threads = n_threads
+    """Stateful parallel Sweep and Prune over a sequence of frames.
 
+    Parameters
+    ----------
+    axes : "auto" or pair of axes
+        ``"auto"`` starts sweeping x (primary) and y (secondary) and swaps an
+        axis with the unused one when its dispersion passes
+        ``swap_threshold`` (Section 5).  A pair such as ``(0, 2)`` or ``"xz"``
+        fixes the sweep axes.
+    n_threads : int, optional
+        Numba threads for each call; ``None`` uses numba's current setting.
+        One thread runs the sequential Algorithm 1.  Results do not depend on
+        it.
+    swap_threshold : float
+        Dispersion D (equation 1 of the paper) of a sweep axis's sort buckets
+        above which the axis is swapped out.
+
+    Notes
+    -----
+    Boxes are closed: ``i`` and ``j`` overlap iff ``lower_i <= upper_j`` and
+    ``lower_j <= upper_i`` on every axis.  The number of boxes may change
+    between calls (the temporal state is then reset).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from granularsap import SweepAndPrune
+    >>> engine = SweepAndPrune()
+    >>> lower = np.array([[0.0, 0, 0], [1.0, 0, 0], [5.0, 5, 5]])
+    >>> engine.update(lower, lower + 1.0)
+    array([[0, 1]])
+    >>> engine.stats["pairs"]
+    1
+    """
+
+    def __init__(self, *, axes="auto", n_threads=None, swap_threshold=0.25):
+        self._axes, self._dynamic = _parse_axes(axes)
+        self.n_threads = check_n_threads(n_threads)
+        self.swap_threshold = float(swap_threshold)
+        if not self.swap_threshold > 0:
+            raise ValueError(f"swap_threshold must be positive, got {swap_threshold!r}")
+        self._path = None  # "sequential" | "parallel" | None (choose by size/threads)
+        self._partitions = None  # override of the number of partitions (tests)
+        self._n = -1
+        self._layout = None
+        self._bounds = {}
+        self._pair_hint = None
+        self._swaps = 0
+        self._frame = 0
+        self.stats = {}
+
+    # ------------------------------------------------------------------ buffers
+    def _ensure(self, n, parts, buckets):
+        layout = (n, parts, buckets)
+        if self._layout == layout:
+            return False
+        if self._n != n or self._layout is None or self._layout[2] != buckets:
+            self._bounds = {}
+            self._pair_hint = None
+        self._n = n
+        self._layout = layout
+        n2 = 2 * n
+        self._keys = np.empty(n2, np.uint64)
+        self._keys_tmp = np.empty(n2, np.uint64)
+        self._idx_tmp = np.empty(n2, np.int32)
+        self._ix = np.empty(n2, np.int32)
+        self._iy = np.empty(n2, np.int32)
+        self._rank = np.empty(n, np.int32)
+        self._rinv = np.empty(n, np.int32)
+        self._lcand = np.empty(n, np.int32)
+        self._ucand = np.empty(n, np.int32)
+        self._br = np.empty((n, 4), np.float64)
+        self._hist = np.empty((parts, buckets), np.int64)
+        self._starts = np.empty(buckets + 1, np.int64)
+        self._counts = np.zeros(parts, np.int64)
+        self._tested = np.zeros(parts, np.int64)
+        self._off_full = st.layout(n)
+        self._trees_cand = np.zeros((parts, self._off_full[-1]), np.uint64)
+        delta = (n + parts - 1) // parts
+        self._off_part = st.layout(delta)
+        self._trees_pair = np.zeros((parts, self._off_part[-1]), np.uint64)
+        self._out = np.empty((parts, 0), np.int64)
+        return True
+
+    def _bounds_for(self, axis, lower, upper, buckets):
+        b = self._bounds.get(axis)
+        if b is None:
+            b = np.empty(buckets - 1, np.uint64)
+            rs.bounds_from_span(lower, upper, axis, b)
+            self._bounds[axis] = b
+            return b, False
+        return b, True
+
+    # ------------------------------------------------------------------ update
     def update(self, lower, upper):
-        return box_overlaps(lower, upper, n_threads=self.n_threads)
+        """Overlapping pairs of the boxes ``[lower, upper]`` of this frame.
+
+        Parameters
+        ----------
+        lower, upper : (n, 3) array_like of float
+            Box corners; float32 is widened exactly to float64.
+
+        Returns
+        -------
+        pairs : (k, 2) ndarray of int64
+            Each overlapping pair once, ``i < j`` in every row; row order is
+            unspecified.
+
+        Raises
+        ------
+        ValueError
+            NaN or inf, wrong shapes, mismatched lengths, or ``lower > upper``.
+        """
+        lower, upper = _check_boxes(lower, upper)
+        with num_threads(self.n_threads) as threads:
+            return self._update(lower, upper, threads)
+
+    def _update(self, lower, upper, threads):
+        t_start = time.perf_counter()
+        n = lower.shape[0]
+        path = self._path or ("sequential" if threads == 1 or n < _PARALLEL_MIN
+                              else "parallel")
+        parts = 1 if path == "sequential" else (self._partitions or threads)
+        buckets = max(1, min(max(_MIN_BUCKETS, _BUCKETS_PER_THREAD * threads),
+                             (2 * n) // _MIN_BUCKET))
+        if self._partitions:
+            buckets = max(buckets, min(self._partitions, max(1, 2 * n)))
+        fresh = self._ensure(n, parts, buckets)
+        a0, a1 = self._axes
+        a2 = 3 - a0 - a1
+        self._frame += 1
+        stats = {"frame": self._frame, "n": n, "threads": threads, "path": path,
+                 "partitions": parts, "buckets": buckets, "fresh": fresh}
+        if n < 2:
+            pairs = np.empty((0, 2), np.int64)
+            self._finish(stats, pairs, 0, {"sort": 0.0, "candidates": 0.0, "pairing": 0.0},
+                         {a0: 0.0, a1: 0.0}, t_start)
+            return pairs
+
+        # Sorting (Algorithm 2; Algorithm 1 lines 5 and 15).
+        t0 = time.perf_counter()
+        disp = {}
+        trusted = {}
+        for axis, idx in ((a0, self._ix), (a1, self._iy)):
+            b, trusted[axis] = self._bounds_for(axis, lower, upper, buckets)
+            if path == "sequential":
+                rs.sort_sequential(lower, upper, axis, self._keys, self._keys_tmp, idx,
+                                   self._idx_tmp)
+                rs.bucket_sizes_sorted(lower, upper, axis, idx, b, self._starts)
+            else:
+                rs.sort_parallel(lower, upper, axis, b, self._keys, self._keys_tmp, idx,
+                                 self._idx_tmp, self._hist, self._starts, parts)
+            disp[axis] = float(rs.dispersion(self._starts))
+            rs.bounds_from_order(lower, upper, axis, idx, b)
+        t1 = time.perf_counter()
+
+        # Candidate generation and pairing.
+        cap = self._capacity(n, parts)
+        if path == "sequential":
+            sw.candidates_sequential(self._ix, n, lower, upper, a0, a2, self._rank,
+                                     self._rinv, self._lcand, self._ucand, self._br,
+                                     self._trees_cand[0], self._off_full)
+            t2 = time.perf_counter()
+            cand_s = t2 - t1
+            self._out = self._grow(self._out, 1, cap)
+            while True:
+                cnt, tested = sw.pairing_sequential(
+                    self._iy, n, self._rank, self._rinv, self._lcand, self._ucand,
+                    self._br, self._trees_cand[0], self._off_full, self._out[0])
+                if cnt <= self._out.shape[1] // 2:
+                    break
+                self._out = self._grow(self._out, 1, cnt + cnt // 4)
+            self._counts[0] = cnt
+        else:
+            sw.candidates_parallel(self._ix, n, self._rank, self._rinv, self._lcand,
+                                   self._ucand, self._trees_cand, self._off_full,
+                                   self._counts)
+            t2 = time.perf_counter()
+            cand_s = t2 - t1
+            ev = self._ix  # the primary order is no longer needed: reuse its memory
+            evlu = self._keys.view(np.int64)
+            sw.gather_parallel(self._iy, n, lower, upper, a0, a2, self._rank, self._rinv,
+                               self._lcand, self._ucand, self._br, ev, evlu)
+            self._out = self._grow(self._out, parts, cap)
+            todo = np.ones(parts, np.bool_)
+            while True:
+                sw.pairing_parallel(ev, evlu, n, self._br, self._rinv, self._trees_pair,
+                                    self._off_part, self._out, self._counts, self._tested,
+                                    todo)
+                need = int(self._counts.max())
+                if need <= self._out.shape[1] // 2:
+                    break
+                todo = self._counts > self._out.shape[1] // 2
+                self._out = self._grow(self._out, parts, need + need // 4, keep=~todo)
+            tested = int(self._tested.sum())
+        total = int(self._counts[:parts].sum())
+        pairs = np.empty((total, 2), np.int64)
+        sw.assemble(self._out, self._counts[:parts], pairs)
+        t3 = time.perf_counter()
+        self._pair_hint = int(self._counts[:parts].max())
+        self._finish(stats, pairs, tested,
+                     {"sort": t1 - t0, "candidates": cand_s, "pairing": t3 - t1 - cand_s},
+                     disp, t_start)
+        self._maybe_swap(disp, trusted)
+        return pairs
+
+    def _capacity(self, n, parts):
+        if self._pair_hint is not None:
+            return max(1024, self._pair_hint + self._pair_hint // 8)
+        return max(1024, (4 * n) // parts)
+
+    @staticmethod
+    def _grow(out, parts, cap, keep=None):
+        if out.shape[0] == parts and out.shape[1] >= 2 * cap:
+            return out
+        new = np.empty((parts, 2 * cap), np.int64)
+        if keep is not None and out.shape[0] == parts:
+            w = min(out.shape[1], new.shape[1])
+            for p in np.flatnonzero(keep):
+                new[p, :w] = out[p, :w]
+        return new
+
+    def _finish(self, stats, pairs, tested, seconds, disp, t_start):
+        seconds = dict(seconds)
+        seconds["total"] = time.perf_counter() - t_start
+        stats.update(seconds=seconds, axes=tuple(self._axes), dispersion=disp,
+                     swaps=self._swaps, candidates_tested=int(tested), pairs=len(pairs))
+        self.stats = stats
+
+    def _maybe_swap(self, disp, trusted):
+        """Section 5: swap the most dispersed sweep axis with the unused one."""
+        if not self._dynamic:
+            return
+        a0, a1 = self._axes
+        worst = max((a0, a1), key=lambda a: disp[a])
+        if not trusted[worst] or disp[worst] <= self.swap_threshold:
+            return
+        unused = 3 - a0 - a1
+        self._axes = (unused, a1) if worst == a0 else (a0, unused)
+        self._bounds.pop(unused, None)  # re-initialised from the span
+        self._swaps += 1
+
+
+def _box_overlaps_path(lower, upper, *, path=None, n_threads=None, partitions=None,
+                       axes="auto"):
+    """``box_overlaps`` with the algorithm path forced (tests and benchmarks)."""
+    engine = SweepAndPrune(axes=axes, n_threads=n_threads)
+    engine._path = path
+    engine._partitions = partitions
+    return engine.update(lower, upper)
+
+
+def box_overlaps(lower, upper, *, n_threads=None):
+    """All pairs of overlapping axis-aligned boxes.
+
+    Parameters
+    ----------
+    lower, upper : (n, 3) array_like of float
+        Minimum and maximum corners.  Boxes are closed (touching counts).
+    n_threads : int, optional
+        Numba threads; ``None`` keeps numba's setting.
+
+    Returns
+    -------
+    pairs : (k, 2) ndarray of int64
+        Each overlapping pair once with ``i < j``; row order is unspecified.
+
+    Raises
+    ------
+    ValueError
+        NaN or inf, wrong shapes, mismatched lengths, or ``lower > upper``.
+    TypeError
+        Non-numeric input or a non-integer ``n_threads``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from granularsap import box_overlaps
+    >>> lower = np.array([[0.0, 0, 0], [0.5, 0.5, 0.5], [2.0, 2, 2]])
+    >>> box_overlaps(lower, lower + 1.0)
+    array([[0, 1]])
+    """
+    return SweepAndPrune(n_threads=n_threads).update(lower, upper)

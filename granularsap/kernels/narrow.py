@@ -1,0 +1,167 @@
+"""Narrow phase: exact distance tests on the broad phase's candidate pairs.
+
+The broad phase (``box_overlaps``) runs on the boxes of the ``n_own`` owned
+particles followed by their ghost images (periodic cells).  A candidate is a
+pair of box indices ``p < q``:
+
+* ``q < n_own``: two owned particles, kept as ``(p, q)``.
+* ``p < n_own <= q``: owned ``a = p`` against the image of ``b = owner[q]``
+  shifted by the lattice vector ``T``.  The same unordered image pair is also
+  seen from ``b``'s side as ``(b, image of a shifted by -T)``; it is kept only
+  where ``a < b`` (and, for a particle against its own image, only for the
+  lexicographically positive ``T``), so each image pair is kept once.
+* both ghosts: dropped (every such pair is found again from an owned side).
+
+The distance vector is ``(pos[b] - pos[a]) + S0 a + S1 b + S2 c`` with
+``S = T - nshift[b] + nshift[a]`` added one cell vector at a time (the order
+MDAnalysis's triclinic minimum image uses), squared norm summed x, y, z, then
+one ``sqrt``; a pair is kept iff ``d <= rad[a] + rad[b] + skin`` (or ``<`` for
+ASE semantics).  Cost O(k) for k candidates, one independent iteration per
+candidate; each iteration writes only its own output slot.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from .._numba import jit, pjit
+
+
+@pjit
+def _narrow_candidates(cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
+                       strict, self_images, keep, dist):
+    """Flag candidates that are within range; ``keep[t]``/``dist[t]`` per candidate."""
+    k = cand.shape[0]
+    for t in numba.prange(k):
+        keep[t] = False
+        dist[t] = 0.0
+        p = cand[t, 0]
+        q = cand[t, 1]
+        if p > q:
+            p, q = q, p
+        if p >= n_own:
+            continue
+        a = p
+        s0 = 0
+        s1 = 0
+        s2 = 0
+        if q < n_own:
+            b = q
+        else:
+            g = q - n_own
+            b = owner[g]
+            s0 = gshift[g, 0]
+            s1 = gshift[g, 1]
+            s2 = gshift[g, 2]
+            if a > b:
+                continue
+            if a == b:
+                if not self_images:
+                    continue
+                if not (s0 > 0 or (s0 == 0 and (s1 > 0 or (s1 == 0 and s2 > 0)))):
+                    continue
+        s0 = s0 - nshift[b, 0] + nshift[a, 0]
+        s1 = s1 - nshift[b, 1] + nshift[a, 1]
+        s2 = s2 - nshift[b, 2] + nshift[a, 2]
+        dx = pos[b, 0] - pos[a, 0]
+        dy = pos[b, 1] - pos[a, 1]
+        dz = pos[b, 2] - pos[a, 2]
+        if s0 != 0:
+            dx += s0 * cell[0, 0]
+            dy += s0 * cell[0, 1]
+            dz += s0 * cell[0, 2]
+        if s1 != 0:
+            dx += s1 * cell[1, 0]
+            dy += s1 * cell[1, 1]
+            dz += s1 * cell[1, 2]
+        if s2 != 0:
+            dx += s2 * cell[2, 0]
+            dy += s2 * cell[2, 1]
+            dz += s2 * cell[2, 2]
+        d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        thr = rad[a] + rad[b] + skin
+        if strict:
+            ok = d < thr
+        else:
+            ok = d <= thr
+        if ok:
+            keep[t] = True
+            dist[t] = d
+
+
+@jit
+def _member_pair(u, i, j, t0, t1, t2, cell):
+    dx = u[j, 0] - u[i, 0]
+    dy = u[j, 1] - u[i, 1]
+    dz = u[j, 2] - u[i, 2]
+    if t0 != 0:
+        dx += t0 * cell[0, 0]
+        dy += t0 * cell[0, 1]
+        dz += t0 * cell[0, 2]
+    if t1 != 0:
+        dx += t1 * cell[1, 0]
+        dy += t1 * cell[1, 1]
+        dz += t1 * cell[1, 2]
+    if t2 != 0:
+        dx += t2 * cell[2, 0]
+        dy += t2 * cell[2, 1]
+        dz += t2 * cell[2, 2]
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@pjit
+def _clump_count(ca, cb, ct, start, members, u, cell, radii, skin, counts):
+    """Number of sphere contacts for each candidate clump pair (image ``ct``)."""
+    k = ca.shape[0]
+    for t in numba.prange(k):
+        a = ca[t]
+        b = cb[t]
+        c = 0
+        for x in range(start[a], start[a + 1]):
+            i = members[x]
+            for y in range(start[b], start[b + 1]):
+                j = members[y]
+                d = _member_pair(u, i, j, ct[t, 0], ct[t, 1], ct[t, 2], cell)
+                if d <= radii[i] + radii[j] + skin:
+                    c += 1
+        counts[t] = c
+
+
+@pjit
+def _clump_fill(ca, cb, ct, start, members, u, cell, radii, skin, offsets,
+                out_pairs, out_dist):
+    """Write the sphere contacts counted by ``_clump_count`` at ``offsets``."""
+    k = ca.shape[0]
+    for t in numba.prange(k):
+        a = ca[t]
+        b = cb[t]
+        o = offsets[t]
+        for x in range(start[a], start[a + 1]):
+            i = members[x]
+            for y in range(start[b], start[b + 1]):
+                j = members[y]
+                d = _member_pair(u, i, j, ct[t, 0], ct[t, 1], ct[t, 2], cell)
+                if d <= radii[i] + radii[j] + skin:
+                    if i < j:
+                        out_pairs[o, 0] = i
+                        out_pairs[o, 1] = j
+                    else:
+                        out_pairs[o, 0] = j
+                        out_pairs[o, 1] = i
+                    out_dist[o] = d
+                    o += 1
+
+
+def narrow_candidates(cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
+                      strict=False, self_images=False):
+    """Run ``_narrow_candidates``; returns ``(keep, dist)`` arrays of length k."""
+    k = len(cand)
+    keep = np.empty(k, dtype=np.bool_)
+    dist = np.empty(k, dtype=np.float64)
+    if k:
+        _narrow_candidates(cand, np.int64(n_own), owner, gshift, pos, nshift, cell, rad,
+                           float(skin), bool(strict), bool(self_images), keep, dist)
+    return keep, dist
