@@ -1,14 +1,432 @@
-"""Sphere contacts, neighbour pairs and rigid clumps (work in progress)."""
+"""Sphere contacts, neighbour pairs and rigid clumps on top of the box broad phase.
+
+Every function here follows the same pipeline:
+
+1. validate the input once (``_validate``, ``periodic.as_cell``);
+2. periodic cells only: wrap positions into the cell and add ghost images of the
+   particles whose range reaches past a face (``periodic.ghost_images``);
+3. broad phase: ``box_overlaps`` on one axis-aligned box per sphere (centre
+   ``+-`` ``(r + skin / 2)`` plus a rounding guard), owned boxes first, then
+   ghosts;
+4. narrow phase (``kernels.narrow``): map ghosts back to owned indices, keep
+   each unordered pair once, exact float64 distance, ``d <= r_i + r_j + skin``.
+
+The broad phase boxes are padded by a few ulps so that rounding in ``x +- h``
+never loses a pair whose distance equals the cutoff exactly; the decision is
+the narrow phase's alone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import periodic
+from ._validate import as_coords, as_scalar, as_vector, check_n_threads
+from .api import box_overlaps
+from .kernels import narrow
+
+__all__ = ["clump_contacts", "neighbor_pairs", "sphere_contacts"]
+
+_EMPTY_PAIRS = np.empty((0, 2), dtype=np.int64)
+
+#: relative guard added to box half-widths against rounding in ``x +- h``
+_GUARD = 64 * np.finfo(np.float64).eps
+
+
+def _guard(positions, half):
+    scale = (np.abs(positions).max() if len(positions) else 0.0) + (
+        half.max() if len(half) else 0.0)
+    return _GUARD * scale + np.finfo(np.float64).tiny
+
+
+def _check_range(reach, cell, pbc, what):
+    """Raise if a pair could interact with more than one image of the other."""
+    widths = periodic.perpendicular_widths(cell)
+    for c in np.flatnonzero(pbc):
+        if reach > 0.5 * widths[c]:
+            raise ValueError(
+                f"{what} {reach:.17g} exceeds half the smallest perpendicular cell width "
+                f"{0.5 * widths[c]:.17g} (width {widths[c]:.17g} across cell vector {c}); "
+                "several periodic images of a pair would be in range. Use a larger "
+                "cell (replicate it) or a smaller cutoff; granularsap.ase.neighbor_list "
+                "returns every image with its shift")
+
+
+def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
+            minimum_image=True, pos_for_distance=None,
+            what="interaction range 2 * max(radii) + skin"):
+    """Core pair search shared by the public functions and the drop-ins.
+
+    Parameters
+    ----------
+    positions : (n, 3) float64
+        Validated positions (not necessarily wrapped).
+    rad : (n,) float64
+        Per-particle half range: pair ``(i, j)`` is in range iff
+        ``d <= rad[i] + rad[j] + skin`` (``<`` if ``strict``).
+    cell : (3, 3) float64 or None
+    pbc : (3,) bool
+    minimum_image : bool or "reduce"
+        True: one image per pair (raises if the range needs more), self images
+        dropped.  False: every image pair within range (ASE), returned with shifts.
+        "reduce": like True, but a range beyond half the cell width is handled by
+        searching every image and keeping the nearest one per pair.
+    pos_for_distance : None or "original"
+        Which coordinates the distance is computed from: the wrapped ones
+        (default, MDAnalysis) or the caller's own with integer shifts (ASE).
+
+    Returns
+    -------
+    a, b : (k,) int64
+        Owned indices, ``a <= b`` (``a == b`` only for self images).
+    shift : (k, 3) int64
+        ``S`` such that the separation is ``pos[b] - pos[a] + S @ cell``
+        (``pos`` as chosen by ``pos_for_distance``; wrapped positions by default).
+    dist : (k,) float64
+    wrapped : (n, 3) float64
+        Positions the distances refer to (wrapped, or the input).
+    """
+    n = len(positions)
+    half = rad + 0.5 * skin
+    periodic_run = cell is not None and bool(np.any(pbc))
+    if periodic_run:
+        reach_max = 2.0 * (rad.max() if n else 0.0) + skin
+        if minimum_image == "reduce":
+            widths = periodic.perpendicular_widths(cell)
+            if reach_max <= 0.5 * widths[pbc].min():
+                minimum_image = True
+        elif minimum_image:
+            _check_range(reach_max, cell, pbc, what)
+        wrapped, nshift = periodic.wrap(positions, cell, pbc)
+        guard = _guard(wrapped, half)
+        reach = rad + (rad.max() if n else 0.0) + skin + 4 * guard
+        widths = periodic.perpendicular_widths(cell)
+        # rounding guard in fractional units as well
+        reach = reach + 1e-12 * widths.max()
+        owner, gshift = periodic.ghost_images(wrapped, cell, pbc, reach)
+        ghosts = periodic._shift(wrapped[owner], gshift, cell)
+        centres = np.concatenate([wrapped, ghosts]) if len(owner) else wrapped
+        half_all = np.concatenate([half, half[owner]]) + guard if len(owner) else half + guard
+        if pos_for_distance == "original":
+            pos_d = positions
+        else:
+            pos_d = wrapped
+            nshift = np.zeros_like(nshift)
+    else:
+        wrapped = positions
+        guard = _guard(positions, half)
+        owner = np.empty(0, np.int64)
+        gshift = np.empty((0, 3), np.int64)
+        centres = positions
+        half_all = half + guard
+        nshift = np.zeros((n, 3), np.int64)
+        pos_d = positions
+        cell = np.zeros((3, 3)) if cell is None else cell
+    if n == 0:
+        return (np.empty(0, np.int64), np.empty(0, np.int64), np.empty((0, 3), np.int64),
+                np.empty(0, np.float64), pos_d)
+    half_all = half_all[:, None]
+    lower = np.ascontiguousarray(centres - half_all)
+    upper = np.ascontiguousarray(centres + half_all)
+    cand = box_overlaps(lower, upper, n_threads=n_threads)
+    cand = np.ascontiguousarray(cand, dtype=np.int64)
+    from ._numba import num_threads
+
+    with num_threads(n_threads):
+        keep, dist = narrow.narrow_candidates(
+            cand, n, np.ascontiguousarray(owner, dtype=np.int64),
+            np.ascontiguousarray(gshift, dtype=np.int64), np.ascontiguousarray(pos_d),
+            np.ascontiguousarray(nshift), np.ascontiguousarray(cell, dtype=np.float64),
+            np.ascontiguousarray(rad), skin, strict=strict,
+            self_images=minimum_image is False)
+    sel = cand[keep]
+    dist = dist[keep]
+    p = np.minimum(sel[:, 0], sel[:, 1])
+    q = np.maximum(sel[:, 0], sel[:, 1])
+    is_ghost = q >= n
+    a = p
+    b = q.copy()
+    shift = np.zeros((len(sel), 3), dtype=np.int64)
+    if is_ghost.any():
+        g = q[is_ghost] - n
+        b[is_ghost] = owner[g]
+        shift[is_ghost] = gshift[g]
+    shift += nshift[a] - nshift[b]
+    if periodic_run and minimum_image is not False and len(a):
+        widths = periodic.perpendicular_widths(cell)
+        if minimum_image == "reduce" or 2.0 * (2.0 * rad.max() + skin) >= widths[pbc].min():
+            # range exactly half a width: both images of a pair may tie
+            key = a * n + b
+            order = np.lexsort((dist, key))
+            first = np.ones(len(order), dtype=bool)
+            first[1:] = key[order][1:] != key[order][:-1]
+            order = order[first]
+            a, b, shift, dist = a[order], b[order], shift[order], dist[order]
+    return a, b, shift, dist, pos_d
+
+
+def _pairs(a, b):
+    if len(a) == 0:
+        return _EMPTY_PAIRS.copy()
+    return np.ascontiguousarray(np.stack([a, b], axis=1), dtype=np.int64)
 
 
 def sphere_contacts(positions, radii, *, skin=0.0, box=None, n_threads=None,
                     return_distances=False):
-    raise NotImplementedError
+    """Pairs of spheres closer than the sum of their radii plus ``skin``.
+
+    Broad phase on each sphere's axis-aligned box (``centre +- (r + skin / 2)``),
+    then the exact test ``d <= r_i + r_j + skin`` in float64.  Radii may differ
+    by orders of magnitude (polydisperse packings).
+
+    Parameters
+    ----------
+    positions : (n, 3) array_like of float
+        Sphere centres; need not be wrapped into a periodic cell.
+    radii : (n,) array_like of float or float
+        Non-negative radii (a scalar applies to every sphere).
+    skin : float, optional
+        Extra distance added to every pair's contact distance (Verlet skin).
+    box : None, (6,) or (3, 3) array_like of float, optional
+        Periodic cell: MDAnalysis ``[lx, ly, lz, alpha, beta, gamma]`` or a matrix
+        whose rows are the cell vectors.  ``None`` for open boundaries.
+    n_threads : int, optional
+        numba threads for this call (restored afterwards).
+    return_distances : bool, optional
+        Also return the centre-centre (minimum image) distances.
+
+    Returns
+    -------
+    pairs : (k, 2) ndarray of int64
+        ``i < j`` in every row, each pair once, row order unspecified.
+    distances : (k,) ndarray of float64
+        Only if ``return_distances``.
+
+    Raises
+    ------
+    ValueError
+        Wrong shapes, NaN/inf, negative radii or skin, an invalid cell, or
+        ``2 * max(radii) + skin`` larger than half the smallest perpendicular
+        width of the cell.
+    TypeError
+        Non-numeric input.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from granularsap import sphere_contacts
+    >>> pos = np.array([[0.0, 0, 0], [1.5, 0, 0], [5.0, 0, 0]])
+    >>> sphere_contacts(pos, [1.0, 0.5, 1.0]).tolist()
+    [[0, 1]]
+    >>> sphere_contacts(pos, 1.0, box=[6, 6, 6, 90, 90, 90]).tolist()
+    [[0, 1], [0, 2]]
+    """
+    positions = as_coords(positions, "positions")
+    radii = as_vector(radii, "radii", len(positions))
+    skin = as_scalar(skin, "skin")
+    cell = periodic.as_cell(box)
+    n_threads = check_n_threads(n_threads)
+    a, b, _, dist, _ = _search(positions, radii, skin, cell, np.ones(3, bool),
+                               n_threads=n_threads)
+    pairs = _pairs(a, b)
+    return (pairs, dist) if return_distances else pairs
 
 
 def neighbor_pairs(positions, cutoff, *, box=None, n_threads=None, return_distances=True):
-    raise NotImplementedError
+    """All pairs with (minimum image) distance ``d <= cutoff``.
+
+    The same pair set as MDAnalysis
+    ``self_capped_distance(positions, max_cutoff=cutoff, box=box)`` (computed in
+    float64 rather than MDAnalysis's float32).
+
+    Parameters
+    ----------
+    positions : (n, 3) array_like of float
+    cutoff : float
+        Non-negative cutoff distance; pairs at exactly ``cutoff`` are included.
+    box : None, (6,) or (3, 3) array_like of float, optional
+        Periodic cell as in :func:`sphere_contacts`.
+    n_threads : int, optional
+    return_distances : bool, optional
+        Also return the distances (default True, as MDAnalysis).
+
+    Returns
+    -------
+    pairs : (k, 2) ndarray of int64
+        ``i < j``, each pair once, row order unspecified.
+    distances : (k,) ndarray of float64
+        Only if ``return_distances``.
+
+    Raises
+    ------
+    ValueError
+        Bad shapes or values, or ``cutoff`` larger than half the smallest
+        perpendicular cell width.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from granularsap import neighbor_pairs
+    >>> pairs, d = neighbor_pairs([[0.0, 0, 0], [1, 0, 0], [3, 0, 0]], 2.0)
+    >>> pairs.tolist(), d.tolist()
+    ([[0, 1]], [1.0])
+    """
+    positions = as_coords(positions, "positions")
+    cutoff = as_scalar(cutoff, "cutoff")
+    cell = periodic.as_cell(box)
+    n_threads = check_n_threads(n_threads)
+    rad = np.full(len(positions), 0.5 * cutoff)
+    a, b, _, dist, _ = _search(positions, rad, 0.0, cell, np.ones(3, bool),
+                               n_threads=n_threads, what="cutoff")
+    pairs = _pairs(a, b)
+    return (pairs, dist) if return_distances else pairs
 
 
 def clump_contacts(positions, radii, clump_ids, *, skin=0.0, box=None, n_threads=None):
-    raise NotImplementedError
+    """Contacts between rigid clumps (multi-sphere bodies).
+
+    The broad phase runs on one axis-aligned box per clump (the union of its
+    spheres' boxes); sphere pairs are then tested only between different
+    clumps, so intra-clump pairs are never returned.
+
+    Parameters
+    ----------
+    positions : (n, 3) array_like of float
+        Sphere centres.  In a periodic cell a clump may straddle the boundary;
+        each clump must span less than half the cell along every periodic axis.
+    radii : (n,) array_like of float or float
+    clump_ids : (n,) array_like of int
+        Body label of every sphere (any integers; spheres with equal labels
+        form one rigid clump).
+    skin : float, optional
+    box : None, (6,) or (3, 3) array_like of float, optional
+    n_threads : int, optional
+
+    Returns
+    -------
+    sphere_pairs : (k, 2) ndarray of int64
+        Sphere index pairs ``i < j`` with ``d <= r_i + r_j + skin`` and
+        ``clump_ids[i] != clump_ids[j]``.
+    clump_pairs : (m, 2) ndarray of int64
+        Pairs of clump labels (values of ``clump_ids``), smaller label first,
+        with at least one sphere contact; each once, sorted.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from granularsap import clump_contacts
+    >>> pos = [[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [5, 0, 0]]
+    >>> sp, cp = clump_contacts(pos, 0.5, [7, 7, 8, 9])
+    >>> sp.tolist(), cp.tolist()
+    ([[1, 2]], [[7, 8]])
+    """
+    positions = as_coords(positions, "positions")
+    n = len(positions)
+    radii = as_vector(radii, "radii", n)
+    skin = as_scalar(skin, "skin")
+    ids = np.asarray(clump_ids)
+    if ids.dtype.kind not in "iu":
+        if ids.dtype.kind == "f" and ids.size and np.all(np.isfinite(ids)) and np.all(
+                ids == np.round(ids)):
+            ids = ids.astype(np.int64)
+        elif ids.size == 0:
+            ids = ids.astype(np.int64)
+        else:
+            raise TypeError(f"clump_ids must be integers, got dtype {ids.dtype}")
+    if ids.shape != (n,):
+        raise ValueError(f"clump_ids must have shape ({n},), got {ids.shape}")
+    cell = periodic.as_cell(box)
+    n_threads = check_n_threads(n_threads)
+    if n == 0:
+        return _EMPTY_PAIRS.copy(), _EMPTY_PAIRS.copy()
+    labels, cidx = np.unique(ids, return_inverse=True)
+    cidx = cidx.reshape(-1).astype(np.int64)
+    nc = len(labels)
+    members = np.argsort(cidx, kind="stable").astype(np.int64)
+    start = np.zeros(nc + 1, dtype=np.int64)
+    np.cumsum(np.bincount(cidx, minlength=nc), out=start[1:])
+    ref = members[start[:-1]]  # first sphere of every clump
+    pbc = np.ones(3, dtype=bool)
+    half = radii + 0.5 * skin
+    if cell is not None:
+        _check_range(2.0 * radii.max() + skin, cell, pbc,
+                     "interaction range 2 * max(radii) + skin")
+        wref, _ = periodic.wrap(positions[ref], cell, pbc)
+        offs = positions - positions[ref[cidx]]
+        s = periodic.fractional(offs, cell)
+        s -= np.round(s)
+        smin = np.full((nc, 3), np.inf)
+        smax = np.full((nc, 3), -np.inf)
+        np.minimum.at(smin, cidx, s)
+        np.maximum.at(smax, cidx, s)
+        span = smax - smin
+        if np.any(span >= 0.5):
+            c_bad, ax = np.unravel_index(int(np.argmax(span)), span.shape)
+            raise ValueError(
+                f"clump {labels[c_bad]} spans {span[c_bad, ax]:.6g} of the cell along cell "
+                f"vector {ax}; every clump must span less than half the cell along each "
+                "periodic axis")
+        u = wref[cidx] + s @ cell
+        u[ref] = wref
+        widths = periodic.perpendicular_widths(cell)
+    else:
+        u = positions
+        cell_k = np.zeros((3, 3))
+    guard = _guard(u, half)
+    lo = u - (half + guard)[:, None]
+    hi = u + (half + guard)[:, None]
+    clo = np.full((nc, 3), np.inf)
+    chi = np.full((nc, 3), -np.inf)
+    np.minimum.at(clo, cidx, lo)
+    np.maximum.at(chi, cidx, hi)
+    if cell is not None:
+        centre = u[ref]
+        bound = np.zeros(nc)
+        np.maximum.at(bound, cidx, np.linalg.norm(u - centre[cidx], axis=1) + half + guard)
+        reach = bound + bound.max() + 1e-12 * widths.max()
+        owner, gshift = periodic.ghost_images(centre, cell, pbc, reach)
+        glo = periodic._shift(clo[owner], gshift, cell)
+        ghi = periodic._shift(chi[owner], gshift, cell)
+        lower = np.concatenate([clo, glo])
+        upper = np.concatenate([chi, ghi])
+        cell_k = cell
+    else:
+        owner = np.empty(0, np.int64)
+        gshift = np.empty((0, 3), np.int64)
+        lower, upper = clo, chi
+    cand = np.asarray(box_overlaps(np.ascontiguousarray(lower), np.ascontiguousarray(upper),
+                                   n_threads=n_threads), dtype=np.int64)
+    p = np.minimum(cand[:, 0], cand[:, 1]) if len(cand) else np.empty(0, np.int64)
+    q = np.maximum(cand[:, 0], cand[:, 1]) if len(cand) else np.empty(0, np.int64)
+    ok = p < nc
+    p, q = p[ok], q[ok]
+    ghost = q >= nc
+    cb = q.copy()
+    ct = np.zeros((len(q), 3), dtype=np.int64)
+    cb[ghost] = owner[q[ghost] - nc]
+    ct[ghost] = gshift[q[ghost] - nc]
+    ok = p < cb  # canonical side of each image pair; drops clump-with-own-image
+    ca, cb, ct = (np.ascontiguousarray(p[ok]), np.ascontiguousarray(cb[ok]),
+                  np.ascontiguousarray(ct[ok]))
+    from ._numba import num_threads
+
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    with num_threads(n_threads):
+        counts = np.zeros(len(ca), dtype=np.int64)
+        if len(ca):
+            narrow._clump_count(ca, cb, ct, start, members, u, cell_k, radii, skin, counts)
+        offsets = np.zeros(len(ca) + 1, dtype=np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        total = int(offsets[-1])
+        sp = np.empty((total, 2), dtype=np.int64)
+        sd = np.empty(total, dtype=np.float64)
+        if total:
+            narrow._clump_fill(ca, cb, ct, start, members, u, cell_k, radii, skin,
+                               offsets, sp, sd)
+    hit = counts > 0
+    cp = np.stack([labels[ca[hit]], labels[cb[hit]]], axis=1).astype(np.int64)
+    if len(cp):
+        cp = np.unique(np.sort(cp, axis=1), axis=0)
+    else:
+        cp = _EMPTY_PAIRS.copy()
+    return sp, cp
