@@ -1,0 +1,326 @@
+"""Run workloads through peers: warm-up, timing, peak memory, agreement.
+
+Protocol for one workload and one peer:
+
+1. ``setup`` (untimed: stateful peers build their engine here);
+2. one warm-up run on frame 0, untimed (numba compiles, caches fill); its
+   pairs are kept for the agreement check;
+3. timed runs: ``repeats`` runs of frame 0 for a single-frame workload, or one
+   run per remaining frame for a trajectory; each measures wall seconds
+   (``time.perf_counter``), process CPU seconds (``time.process_time``, all
+   threads) and the peak resident memory above the RSS at its start (Linux:
+   the kernel's high-water mark ``VmHWM``, reset through
+   ``/proc/self/clear_refs`` before each run; elsewhere not measured);
+4. the median over the timed runs is reported.
+
+Agreement: every peer's pairs are reduced to a signature (the pair count of
+every frame checked, plus a hash of the sorted pair set where that is cheap).
+The signature shared by the largest group of peers (strictly larger than
+any other group) is the consensus; a peer outside it *disagrees*.  A disagreeing peer gets no ratio,
+and when granularsap itself disagrees no ratio is reported at all.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import statistics
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .peers import GRANULARSAP
+
+#: pair sets up to this size are compared exactly (by a hash of the sorted codes)
+HASH_LIMIT = 30_000_000
+
+PHASES = ("sort", "candidates", "pairing")
+
+
+@dataclass
+class PeerResult:
+    """What one peer did on one workload (JSON-ready through :func:`dataclasses.asdict`)."""
+
+    peer: str
+    status: str  # "ok", "error", "skipped"
+    reason: str | None = None
+    description: str = ""
+    version: str | None = None
+    threads: int | None = None
+    times: list = field(default_factory=list)
+    cpu_times: list = field(default_factory=list)
+    seconds: float | None = None  # median wall seconds per run (per frame)
+    cpu_seconds: float | None = None
+    warmup_seconds: float | None = None
+    peak_rss_mb: float | None = None
+    pairs: int | None = None  # pairs of frame 0
+    frame_pairs: list | None = None  # pairs of every frame (trajectories)
+    digest: str | None = None
+    agrees: bool | None = None
+    ratio: float | None = None  # seconds / reference seconds
+    phases: dict | None = None  # median granularsap seconds per phase
+    stats: dict | None = None  # the engine's last stats
+    rebuilds: int = 0
+    note: str | None = None
+
+
+@dataclass
+class WorkloadResult:
+    name: str
+    label: str
+    kind: str
+    n: int
+    n_frames: int
+    params: dict
+    results: list
+    reference: str | None = None
+    consensus: list | None = None
+    disagreements: list = field(default_factory=list)
+    fastest_peer: str | None = None
+    best_granularsap: str | None = None
+    speedup_vs_fastest: float | None = None  # fastest peer seconds / best granularsap seconds
+
+    def to_dict(self):
+        out = asdict(self)
+        return out
+
+
+# ----------------------------------------------------------------------- memory
+
+
+def _read_status(key):
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith(key + ":"):
+                return int(line.split()[1]) * 1024
+    return None
+
+
+def _probe_memory():
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+        return _read_status("VmHWM") is not None
+    except OSError:
+        return False
+
+
+def stabilise_malloc():
+    """Make glibc return large blocks to the system at once (for the RSS figures).
+
+    glibc raises its mmap threshold after a large block is freed, so later
+    large arrays come from the already resident heap and a run would show no
+    RSS growth at all.  Fixing the threshold at 128 KiB (mallopt
+    ``M_MMAP_THRESHOLD``) keeps every large array in its own mapping, so the
+    high-water mark of each run counts what that run allocated.  Returns True
+    when applied (Linux with glibc).
+    """
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        m_mmap_threshold = -3
+        return bool(libc.mallopt(m_mmap_threshold, 128 * 1024))
+    except (OSError, AttributeError):
+        return False
+
+
+MEMORY_METHOD = ("peak RSS above the RSS at the start of each timed run (Linux VmHWM, "
+                 "reset via /proc/self/clear_refs)") if _probe_memory() else None
+
+
+class _PeakRSS:
+    """Context manager measuring the peak RSS increase (bytes) inside it."""
+
+    def __enter__(self):
+        self.delta = None
+        if MEMORY_METHOD:
+            with open("/proc/self/clear_refs", "w") as fh:
+                fh.write("5")
+            self.start = _read_status("VmRSS")
+        return self
+
+    def __exit__(self, *exc):
+        if MEMORY_METHOD:
+            self.delta = max(0, _read_status("VmHWM") - self.start)
+        return False
+
+
+# -------------------------------------------------------------------- agreement
+
+
+def canonical(pairs, n):
+    """``(count, digest)`` of a pair array; digest is None above :data:`HASH_LIMIT`."""
+    pairs = np.asarray(pairs)
+    k = len(pairs)
+    if k > HASH_LIMIT:
+        return k, None
+    if k and (pairs.ndim != 2 or pairs.shape[1] != 2):
+        return k, "malformed"
+    codes = np.sort(pairs[:, 0].astype(np.int64) * max(n, 1) + pairs[:, 1].astype(np.int64)) \
+        if k else np.empty(0, np.int64)
+    if k and not np.all(pairs[:, 0] < pairs[:, 1]):
+        return k, "not-i<j"
+    return k, hashlib.blake2b(codes.tobytes(), digest_size=12).hexdigest()
+
+
+def find_consensus(signatures):
+    """Names in the largest group of ``{name: signature}``, or None on a tie."""
+    groups = {}
+    for name, sig in signatures.items():
+        groups.setdefault(sig, []).append(name)
+    if not groups:
+        return None
+    ranked = sorted(groups.values(), key=len, reverse=True)
+    if len(ranked) > 1 and len(ranked[0]) == len(ranked[1]):
+        return None  # a tie: nobody can be trusted
+    return ranked[0]
+
+
+def _phase_seconds(stats):
+    if not stats:
+        return None
+    src = stats.get("seconds", stats)
+    if not isinstance(src, dict):
+        return None
+    out = {k: float(src[k]) for k in PHASES if isinstance(src.get(k), (int, float))}
+    return out or None
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, (str, int, float, bool)) or obj is None:
+        return obj
+    return str(obj)
+
+
+# ---------------------------------------------------------------------- running
+
+
+def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0):
+    """Run one peer on one workload; return a :class:`PeerResult`."""
+    res = PeerResult(peer=peer.name, status="ok", description=peer.description,
+                     version=peer.version(), threads=peer.threads_used(n_threads))
+    why = peer.unsupported(workload)
+    if why:
+        res.status, res.reason = "skipped", why
+        return res
+    n_frames = len(workload.frames)
+    try:
+        peer.setup(workload, n_threads)
+        t0 = time.perf_counter()
+        first = peer.run(0)
+        res.warmup_seconds = time.perf_counter() - t0
+        count, digest = canonical(first, workload.n)
+        del first
+        res.pairs, res.digest = count, digest
+        frame_pairs = [count]
+        if n_frames > 1:
+            plan = list(range(1, n_frames))
+        else:
+            plan = [0] * max(int(repeats), 1)
+        if res.warmup_seconds > max_seconds:
+            plan = []
+            res.note = f"timed once: the warm-up took longer than {max_seconds:g} s"
+        peaks, phases, spent = [], [], 0.0
+        last = None
+        for step, frame in enumerate(plan):
+            with _PeakRSS() as mem:
+                c0 = time.process_time()
+                t0 = time.perf_counter()
+                pairs = peer.run(frame)
+                t1 = time.perf_counter()
+                c1 = time.process_time()
+            res.times.append(t1 - t0)
+            res.cpu_times.append(c1 - c0)
+            spent += t1 - t0
+            if mem.delta is not None:
+                peaks.append(mem.delta)
+            ph = _phase_seconds(peer.last_stats())
+            if ph:
+                phases.append(ph)
+            if n_frames > 1:
+                frame_pairs.append(len(pairs))
+                last = pairs if frame == n_frames - 1 else None
+            del pairs
+            if spent > max_seconds and step + 1 < len(plan):
+                res.note = (f"stopped after {step + 1} of {len(plan)} timed runs "
+                            f"(--max-seconds {max_seconds:g})")
+                break
+        if not res.times:  # timed once: use the warm-up
+            res.times, res.cpu_times = [res.warmup_seconds], [None]
+        if n_frames > 1:
+            res.frame_pairs = frame_pairs
+            if last is not None:
+                _, res.digest = canonical(last, workload.n)
+                res.digest = f"{digest}/{res.digest}"
+        res.seconds = statistics.median(res.times)
+        cpu = [c for c in res.cpu_times if c is not None]
+        res.cpu_seconds = statistics.median(cpu) if cpu else None
+        res.peak_rss_mb = max(peaks) / 2**20 if peaks else None
+        if phases:
+            res.phases = {k: statistics.median(p.get(k, 0.0) for p in phases) for k in PHASES}
+        stats = peer.last_stats()
+        res.stats = _jsonable(stats) if stats else None
+        res.rebuilds = int(getattr(peer, "rebuilds", 0) or 0)
+    except Exception as exc:  # a failing peer is reported, not fatal
+        res.status, res.reason = "error", f"{type(exc).__name__}: {exc}"
+    return res
+
+
+def _signature(res):
+    if res.frame_pairs is not None:
+        return (tuple(res.frame_pairs), res.digest)
+    return (res.pairs, res.digest)
+
+
+def judge(wres):
+    """Fill agreement, reference, ratios and the fastest-peer summary of ``wres``."""
+    ran = [r for r in wres.results if r.status == "ok"]
+    consensus = find_consensus({r.peer: _signature(r) for r in ran})
+    wres.consensus = consensus
+    for r in ran:
+        r.agrees = consensus is not None and r.peer in consensus
+        if not r.agrees:
+            wres.disagreements.append(r.peer)
+    by_name = {r.peer: r for r in ran}
+    ref = next((by_name[g] for g in GRANULARSAP if g in by_name and by_name[g].agrees), None)
+    gsap_disagrees = any(by_name[g].agrees is False for g in GRANULARSAP if g in by_name)
+    if ref is None or gsap_disagrees:
+        return wres
+    wres.reference = ref.peer
+    for r in ran:
+        if r.agrees and r.seconds and ref.seconds:
+            r.ratio = r.seconds / ref.seconds
+    others = [r for r in ran if r.agrees and r.peer not in GRANULARSAP]
+    ours = [by_name[g] for g in GRANULARSAP if g in by_name and by_name[g].agrees]
+    if others and ours:
+        fastest = min(others, key=lambda r: r.seconds)
+        best = min(ours, key=lambda r: r.seconds)
+        wres.fastest_peer, wres.best_granularsap = fastest.peer, best.peer
+        wres.speedup_vs_fastest = fastest.seconds / best.seconds
+    return wres
+
+
+def run_workload(workload, peers, *, repeats=5, n_threads=1, max_seconds=120.0,
+                 progress=None):
+    """Run every peer on ``workload``; return a judged :class:`WorkloadResult`.
+
+    ``progress(peer_result)`` is called after each peer, for the CLI's lines.
+    """
+    results = []
+    for peer in peers:
+        res = run_peer(peer, workload, repeats=repeats, n_threads=n_threads,
+                       max_seconds=max_seconds)
+        results.append(res)
+        if progress is not None:
+            progress(res)
+    wres = WorkloadResult(name=workload.name, label=workload.label, kind=workload.kind,
+                          n=workload.n, n_frames=len(workload.frames),
+                          params=_jsonable(workload.params), results=results)
+    return judge(wres)
