@@ -1,0 +1,323 @@
+"""Compare granularsap's pairs with LAMMPS's and MDAnalysis's, frame by frame.
+
+For every frame of TRAJ, granularsap finds the pairs within ``--cutoff`` (or
+the sphere contacts ``d <= r_i + r_j + skin`` with radii from
+``--radius-column``); each reference in ``--against`` does the same:
+
+lammps
+    LAMMPS's own neighbour list (``lammps_bridge``): ``pair_style zero`` for a
+    cutoff, a granular size list for radii; every candidate is re-tested with
+    ``d <= reach`` in float64 (see docs/lammps.md for what LAMMPS counts).
+mdanalysis
+    ``MDAnalysis.lib.distances.self_capped_distance`` (float32 internally);
+    for radii, its pairs within ``2 max(r) + skin`` are filtered with its own
+    distances.
+
+A table gives, per frame, the pairs found by each and the differences
+(``+a/-b``: ``a`` pairs only granularsap has, ``b`` only the reference has).
+A differing pair whose float64 distance lies within the reference's rounding
+of the cutoff is a *tie* and is reported in its own column; every differing
+pair is listed below the table with its distance.
+
+Exit codes: 0 every frame identical; 1 some pair differs beyond rounding;
+3 the only differences are ties at the cutoff (0 with --allow-ties);
+2 bad usage or input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+#: references this command knows
+REFERENCES = ("lammps", "mdanalysis")
+
+
+def _frames(text):
+    parts = text.split(":")
+    if len(parts) > 3:
+        raise argparse.ArgumentTypeError(f"expected START:STOP:STEP, got {text!r}")
+    try:
+        vals = [int(p) if p.strip() else None for p in parts] + [None] * (3 - len(parts))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected integers in START:STOP:STEP, got {text!r}") from None
+    if len(parts) == 1 and vals[0] is not None:
+        vals = [vals[0], vals[0] + 1, None]
+    start, stop, step = vals
+    if (start is not None and start < 0) or (stop is not None and stop < 0) or \
+            (step is not None and step <= 0):
+        raise argparse.ArgumentTypeError(
+            f"START, STOP must be >= 0 and STEP > 0, got {text!r}")
+    return slice(start, stop, step)
+
+
+def _nonneg(text):
+    try:
+        val = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (val >= 0) or val == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return val
+
+
+def _against(text):
+    names = [t.strip().lower() for t in text.split(",") if t.strip()]
+    bad = [t for t in names if t not in REFERENCES]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(
+            f"unknown reference {', '.join(bad) or text!r}; choose from {', '.join(REFERENCES)}")
+    return list(dict.fromkeys(names))
+
+
+def add_arguments(parser):
+    parser.add_argument("trajectory", metavar="TRAJ",
+                        help="LAMMPS text dump, or any file ASE or MDAnalysis reads")
+    parser.add_argument("--against", type=_against, default=list(REFERENCES),
+                        metavar="REF[,REF]",
+                        help="references to compare with: lammps, mdanalysis (default both)")
+    what = parser.add_mutually_exclusive_group()
+    what.add_argument("--cutoff", type=_nonneg, metavar="C",
+                      help="neighbour pairs with d <= C")
+    what.add_argument("--radius-column", metavar="NAME",
+                      help="sphere contacts d <= r_i + r_j + skin, radii from this column "
+                           "(default when the file has a radius column)")
+    parser.add_argument("--skin", type=_nonneg, default=0.0, metavar="S",
+                        help="skin added to r_i + r_j (with radii; default 0)")
+    parser.add_argument("--frames", type=_frames, default=None, metavar="START:STOP:STEP",
+                        help="frames to check (default all)")
+    parser.add_argument("--format", default=None, help="trajectory format (see iter_frames)")
+    parser.add_argument("--allow-ties", action="store_true",
+                        help="exit 0 (instead of 3) when the only differences are ties at the "
+                             "cutoff")
+    parser.add_argument("--show", type=int, default=10, metavar="N",
+                        help="differing pairs listed per frame and reference (default 10)")
+
+
+# --------------------------------------------------------------------------- helpers
+
+def _keys(pairs, n):
+    import numpy as np
+
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    a = np.minimum(pairs[:, 0], pairs[:, 1])
+    b = np.maximum(pairs[:, 0], pairs[:, 1])
+    return np.unique(a * n + b)
+
+
+def _pair_distances(positions, cell, keys, n):
+    """Float64 minimum-image distances of the pairs encoded in ``keys``."""
+    import numpy as np
+
+    i, j = keys // n, keys % n
+    d = positions[j] - positions[i]
+    if cell is None or len(keys) == 0:
+        return np.sqrt((d * d).sum(axis=1))
+    inv = np.linalg.inv(cell)
+    f = d @ inv
+    f -= np.rint(f)
+    shifts = np.array([[a, b, c] for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)],
+                      dtype=np.float64)
+    best = np.full(len(keys), np.inf)
+    for s in shifts:
+        v = (f + s) @ cell
+        best = np.minimum(best, (v * v).sum(axis=1))
+    return np.sqrt(best)
+
+
+class _Setup:
+    """What every frame is asked: cutoff or radii, and each backend's call."""
+
+    def __init__(self, args, first_frame):
+        self.cutoff = args.cutoff
+        self.radius_column = args.radius_column
+        self.skin = args.skin
+        if self.cutoff is None and self.radius_column is None:
+            if first_frame.radius is not None or "radius" in first_frame.columns:
+                self.radius_column = "radius"
+            else:
+                from .cli import CLIError
+
+                raise CLIError("give --cutoff C or --radius-column NAME "
+                               f"({first_frame.source} has no radius column)")
+
+    def describe(self):
+        if self.cutoff is not None:
+            return f"neighbour pairs d <= {self.cutoff:g}"
+        return f"sphere contacts d <= r_i + r_j + {self.skin:g} (radii: {self.radius_column})"
+
+    def radii(self, frame):
+        import numpy as np
+
+        try:
+            return np.ascontiguousarray(frame.column(self.radius_column), dtype=np.float64)
+        except KeyError as exc:
+            from .cli import CLIError
+
+            raise CLIError(str(exc.args[0])) from None
+
+    def reach(self, radii, keys, n):
+        if self.cutoff is not None:
+            return self.cutoff
+        return radii[keys // n] + radii[keys % n] + self.skin
+
+
+def _geometry(frame):
+    """(positions, cell or None) in the form granularsap takes."""
+    import numpy as np
+
+    pos = np.ascontiguousarray(frame.positions, dtype=np.float64)
+    pbc = np.asarray(frame.pbc, dtype=bool)
+    if frame.cell is None or not pbc.any():
+        return pos, None
+    if not pbc.all():
+        from .cli import CLIError
+
+        raise CLIError(f"frame {frame.index}: mixed periodicity {pbc.tolist()} is not supported "
+                       "by granularsap.neighbor_pairs; use lammps_bridge directly")
+    return pos, np.asarray(frame.cell, dtype=np.float64)
+
+
+def _run_granularsap(setup, pos, cell, radii):
+    import granularsap
+
+    if setup.cutoff is not None:
+        return granularsap.neighbor_pairs(pos, setup.cutoff, box=cell, return_distances=False)
+    return granularsap.sphere_contacts(pos, radii, skin=setup.skin, box=cell)
+
+
+def _run_lammps(setup, pos, cell, radii):
+    import lammps_bridge
+
+    if setup.cutoff is not None:
+        return lammps_bridge.neighbor_pairs(pos, setup.cutoff, cell)
+    return lammps_bridge.sphere_contacts(pos, radii, skin=setup.skin, box=cell)
+
+
+def _run_mdanalysis(setup, pos, cell, radii):
+    import numpy as np
+
+    try:
+        from MDAnalysis.lib.distances import self_capped_distance
+    except ImportError as exc:
+        raise ImportError("the mdanalysis reference needs MDAnalysis: "
+                          "pip install granularsap[mda]") from exc
+    box = None
+    if cell is not None:
+        from .io import box_to_cell, cell_to_box
+
+        box = cell_to_box(cell)
+        std = box_to_cell(box)  # MDAnalysis's own orientation of that cell
+        pos = pos @ np.linalg.solve(cell, std)
+    if setup.cutoff is not None:
+        pairs = self_capped_distance(pos, max_cutoff=setup.cutoff, box=box,
+                                     return_distances=False)
+        return np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    reach_max = 2.0 * float(radii.max()) + setup.skin if len(radii) else 0.0
+    pairs, dist = self_capped_distance(pos, max_cutoff=reach_max, box=box)
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    keep = dist <= radii[pairs[:, 0]] + radii[pairs[:, 1]] + setup.skin
+    return pairs[keep]
+
+
+_RUNNERS = {"lammps": _run_lammps, "mdanalysis": _run_mdanalysis}
+
+
+def _tie_tolerance(ref, pos, cell, reach_scale):
+    """Absolute band around the cutoff within which a difference is a rounding tie."""
+    import numpy as np
+
+    scale = float(np.abs(pos).max()) if len(pos) else 0.0
+    if cell is not None:
+        scale += float(np.abs(cell).max())
+    scale = max(scale, reach_scale)
+    # MDAnalysis rounds coordinates and box to float32; LAMMPS and granularsap stay float64
+    eps = float(np.finfo(np.float32).eps) if ref == "mdanalysis" else float(np.finfo(float).eps)
+    return 4.0 * eps * scale
+
+
+# --------------------------------------------------------------------------- command
+
+def run(args) -> int:
+    import numpy as np
+
+    from .io import iter_frames
+
+    frames_iter = iter_frames(args.trajectory, format=args.format, frames=args.frames)
+    refs = list(args.against)
+    setup = None
+    header_done = False
+    total = {"frames": 0, "diff": 0, "ties": 0}
+    details = []
+    for frame in frames_iter:
+        if setup is None:
+            setup = _Setup(args, frame)
+            print(f"granularsap validate: {args.trajectory}: {setup.describe()}; "
+                  f"against {', '.join(refs)}")
+        pos, cell = _geometry(frame)
+        n = len(pos)
+        radii = setup.radii(frame) if setup.cutoff is None else None
+        t0 = time.perf_counter()
+        mine = _keys(_run_granularsap(setup, pos, cell, radii), max(n, 1))
+        times = {"granularsap": time.perf_counter() - t0}
+        row = [f"{frame.index:>5}", f"{frame.step if frame.step is not None else '-':>8}",
+               f"{n:>6}", f"{len(mine):>11}"]
+        frame_ties = 0
+        for ref in refs:
+            t0 = time.perf_counter()
+            theirs = _keys(_RUNNERS[ref](setup, pos, cell, radii), max(n, 1))
+            times[ref] = time.perf_counter() - t0
+            only_mine = np.setdiff1d(mine, theirs, assume_unique=True)
+            only_theirs = np.setdiff1d(theirs, mine, assume_unique=True)
+            diff = np.concatenate([only_mine, only_theirs])
+            n_ties = 0
+            if len(diff):
+                d = _pair_distances(pos, cell, diff, max(n, 1))
+                reach = setup.reach(radii, diff, max(n, 1))
+                reach_arr = np.broadcast_to(np.asarray(reach, dtype=float), d.shape)
+                tol = _tie_tolerance(ref, pos, cell, float(reach_arr.max()))
+                tie = np.abs(d - reach_arr) <= tol
+                n_ties = int(tie.sum())
+                for k in range(min(len(diff), args.show)):
+                    who = "granularsap only" if k < len(only_mine) else f"{ref} only"
+                    kind = (f"tie: |d - reach| = {abs(d[k] - reach_arr[k]):.3g} <= "
+                            f"{tol:.3g}" if tie[k] else "NOT a tie")
+                    details.append(f"  frame {frame.index}: pair ({diff[k] // n}, "
+                                   f"{diff[k] % n}) {who}: d = {float(d[k])!r}, reach = "
+                                   f"{float(reach_arr[k])!r} ({kind})")
+                if len(diff) > args.show:
+                    details.append(f"  frame {frame.index}: ... {len(diff) - args.show} more "
+                                   f"differences against {ref}")
+            frame_ties += n_ties
+            total["diff"] += len(diff) - n_ties
+            total["ties"] += n_ties
+            row += [f"{len(theirs):>11}", f"{f'+{len(only_mine)}/-{len(only_theirs)}':>9}"]
+        row += [f"{frame_ties:>5}"]
+        row += [f"{1e3 * times[k]:>8.1f}" for k in ["granularsap", *refs]]
+        if not header_done:
+            head = ["frame", "step", "n", "granularsap"]
+            for ref in refs:
+                head += [ref, f"diff:{ref[:3]}"]
+            head += ["ties"] + [f"ms:{k[:5]}" for k in ["granularsap", *refs]]
+            widths = [5, 8, 6, 11] + [11, 9] * len(refs) + [5] + [8] * (len(refs) + 1)
+            print(" ".join(f"{h:>{w}}" for h, w in zip(head, widths, strict=True)))
+            header_done = True
+        print(" ".join(row))
+        sys.stdout.flush()
+        total["frames"] += 1
+    if setup is None:
+        print(f"granularsap validate: {args.trajectory}: no frames")
+        return 2
+    for line in details:
+        print(line)
+    verdict = ("identical" if total["diff"] == 0 and total["ties"] == 0 else
+               f"{total['diff']} differing pair(s) beyond rounding, {total['ties']} tie(s) "
+               "at the cutoff")
+    print(f"granularsap validate: {total['frames']} frame(s): {verdict}")
+    if total["diff"]:
+        return 1
+    if total["ties"] and not args.allow_ties:
+        return 3
+    return 0
