@@ -173,7 +173,13 @@ def execute(specs, peers, *, build, repeats, n_threads, max_seconds, settings,
     total = len(specs)
     for k, (name, what, *rest) in enumerate(specs, 1):
         density = rest[0] if rest else 0.35
-        workload = build(name, what, density) if rest else build(name, what)
+        try:
+            workload = build(name, what, density) if rest else build(name, what)
+        except (ValueError, OSError) as exc:
+            if name != "data":
+                raise
+            _out(f"[{k}/{total}] skipping {what}: cannot use it ({exc})")
+            continue
         family = (name, density)
         _out(f"[{k}/{total}] {workload.label}: {len(usable)} peers, "
              f"{len(workload.frames) - 1 if len(workload.frames) > 1 else repeats} timed runs")
@@ -200,8 +206,9 @@ def execute(specs, peers, *, build, repeats, n_threads, max_seconds, settings,
         results.append(wres)
         loud = report.disagreement_message(wres)
         if loud:
-            _err(loud)
             _out(loud)
+            if not (sys.stdout.isatty() and sys.stderr.isatty()):
+                _err(loud)  # also on stderr when stdout goes to a file
         _out()
         _out(report.format_table(wres))
         _out()

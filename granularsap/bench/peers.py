@@ -7,7 +7,10 @@ Libraries that take a single cutoff are asked for ``Workload.search_radius()``
 (twice the largest radius for contacts, the largest centre distance of two
 overlapping boxes for boxes) and their candidates are then filtered with the
 exact test (``d <= r_i + r_j`` or the closed-box test); that filter is part
-of the timed run, because it is part of what their users run.
+of the timed run, because it is part of what their users run.  Libraries that
+compute in float32 (MDAnalysis, freud) get a slightly wider radius and the
+filter uses float64 distances, so that touching contacts in real DEM data are
+decided identically for every peer.
 
 A peer that is not installed reports why in :meth:`Peer.missing`; a peer that
 cannot handle a workload (a triclinic cell, say) reports why in
@@ -24,6 +27,8 @@ import numpy as np
 
 #: relative widening of the candidate radius for libraries that test ``d < r``
 _WIDEN = 1e-9
+#: relative widening for libraries that compute in float32 (MDAnalysis, freud)
+FLOAT32_WIDEN = 1e-4
 
 
 def _version(dist):
@@ -133,6 +138,11 @@ class CutoffPeer(Peer):
 
     #: the library tests d < r instead of d <= r
     strict = False
+    #: the library computes in float32: for contacts and boxes its candidate
+    #: radius is widened by FLOAT32_WIDEN and the exact test uses float64
+    #: distances from the input positions, so touching contacts are decided
+    #: the same way for every peer (a cutoff search keeps the library's answer)
+    float32 = False
 
     def search(self, positions, radius, box):
         """``(pairs (k, 2) with i < j, distances or None)`` within ``radius``."""
@@ -142,11 +152,13 @@ class CutoffPeer(Peer):
         wl = self.workload
         radius = wl.search_radius()
         if wl.kind != "cutoff" or self.strict:
-            radius *= 1.0 + _WIDEN
+            radius *= 1.0 + (FLOAT32_WIDEN if self.float32 and wl.kind != "cutoff" else _WIDEN)
         box = wl.box if wl.kind != "boxes" else None
         pairs, dist = self.search(wl.frames[frame], radius, box)
         if wl.kind == "cutoff" and not self.strict:
             return pairs
+        if self.float32 and wl.kind != "cutoff":
+            dist = None
         return exact_filter(wl, frame, pairs, dist)
 
 
@@ -305,6 +317,7 @@ class MDAnalysisPeer(CutoffPeer):
     module = "MDAnalysis"
     dist = "MDAnalysis"
     method = "nsgrid"
+    float32 = True
 
     def unsupported(self, workload):
         why = super().unsupported(workload)
@@ -460,6 +473,7 @@ class FreudPeer(CutoffPeer):
     dist = "freud-analysis"
     threaded = True
     strict = True
+    float32 = True
     structure = "AABBQuery"
 
     def unsupported(self, workload):

@@ -18,6 +18,7 @@ so runs on different machines or days compare like with like.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -219,8 +220,8 @@ def trajectory(n, *, seed=0, n_frames=50, step=STEP_SIGMA):
 
 
 #: files in data/ that are never trajectories
-_NOT_DATA = {".py", ".sh", ".md", ".txt", ".in", ".json", ".png", ".cfg", ".toml", ".yaml",
-             ".yml", ".h5", ".hdf5", ".log"}
+_NOT_DATA = {".py", ".sh", ".md", ".txt", ".in", ".mol", ".data", ".lmp", ".json", ".png",
+             ".cfg", ".toml", ".yaml", ".yml", ".h5", ".hdf5", ".log"}
 
 
 def data_files(directory):
@@ -233,53 +234,62 @@ def data_files(directory):
                   and not p.name.startswith((".", "README", "LICENSE")))
 
 
-def _read_first_frame(path):
-    """(positions, box, radii) of the first frame of ``path``."""
+def _read_last_frame(path):
+    """(positions, box or None, radii or None) of the last frame of ``path``."""
     try:
         from granularsap.io import iter_frames
     except ImportError:
         iter_frames = None
     if iter_frames is not None:
-        frame = next(iter(iter_frames(path)))
-        get = frame.get if isinstance(frame, dict) else (lambda k, d=None: getattr(frame, k, d))
-        radii = get("radii", None)
-        if radii is None and get("diameter", None) is not None:
-            radii = np.asarray(get("diameter")) / 2.0
-        return np.asarray(get("positions"), dtype=np.float64), get("box", None), radii
-    import ase.io  # fallback when granularsap.io is not part of this build
+        last = deque(iter_frames(path), maxlen=1)
+        if not last:
+            raise ValueError(f"{path} holds no frame")
+        frame = last[0]
+        pos = np.asarray(frame.positions, dtype=np.float64)
+        radii = getattr(frame, "radius", None)
+        cell, pbc = frame.cell, np.asarray(frame.pbc, dtype=bool)
+        origin = getattr(frame, "origin", None)
+    else:  # pragma: no cover - granularsap.io is part of the package
+        import ase.io
 
-    atoms = ase.io.read(str(path), index=0)
-    box = None
-    if atoms.pbc.all():
-        box = np.concatenate([atoms.cell.lengths(), atoms.cell.angles()])
-    radii = atoms.arrays.get("radius")
-    return atoms.get_positions(), box, radii
+        atoms = ase.io.read(str(path), index=-1)
+        pos, radii = atoms.get_positions(), atoms.arrays.get("radius")
+        cell, pbc, origin = np.asarray(atoms.cell), atoms.pbc, None
+    if cell is None or not pbc.any():
+        return pos, None, radii
+    if not pbc.all():
+        raise ValueError(f"{path}: mixed periodicity {pbc.tolist()} is not a benchmark input")
+    if origin is not None:
+        pos = pos - np.asarray(origin, dtype=np.float64)
+    return pos, _cell_to_box(np.asarray(cell, dtype=np.float64)), radii
+
+
+def _cell_to_box(cell):
+    """MDAnalysis ``[lx, ly, lz, alpha, beta, gamma]`` of a (3, 3) cell (rows are vectors)."""
+    lengths = np.linalg.norm(cell, axis=1)
+
+    def angle(u, v):
+        cos = np.dot(u, v) / (np.linalg.norm(u) * np.linalg.norm(v))
+        return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+    a, b, c = cell
+    return np.array([*lengths, angle(b, c), angle(a, c), angle(a, b)])
 
 
 def real_data(path, *, cutoff=LJ_CUTOFF):
-    """The first frame of a trajectory file from data/.
+    """The last frame of a trajectory file from data/.
 
     Particles with radii (granular dumps) are searched for contacts
-    ``d <= r_i + r_j``; the others for pairs within ``cutoff``.
+    ``d <= r_i + r_j``; the others for pairs within ``cutoff``.  The last
+    frame is used because in a pour or a relaxation it is the densest.
     """
     path = Path(path)
-    pos, box, radii = _read_first_frame(path)
+    pos, box, radii = _read_last_frame(path)
     pos = np.ascontiguousarray(pos, dtype=np.float64)
-    if box is not None:
-        box = np.asarray(box, dtype=np.float64)
-        if box.shape == (3, 3):
-            lengths = np.linalg.norm(box, axis=1)
-            a, b, c = box
-
-            def angle(u, v):
-                return np.degrees(np.arccos(np.dot(u, v) / np.linalg.norm(u) / np.linalg.norm(v)))
-
-            box = np.array([*lengths, angle(b, c), angle(a, c), angle(a, b)])
-        if box.shape != (6,) or not np.all(box[:3] > 0):
-            box = None
     n = len(pos)
     common = dict(name="data", n=n, frames=[pos], box=box,
-                  params={"path": str(path), "periodic": box is not None})
+                  params={"path": str(path), "periodic": box is not None,
+                          "box": None if box is None else box.tolist()})
     if radii is not None:
         radii = np.ascontiguousarray(radii, dtype=np.float64)
         return Workload(label=f"data {path.name} N={n} contacts", kind="contacts",

@@ -1,0 +1,246 @@
+"""Smoke tests of the ``granularsap bench`` harness (tiny inputs, no timing assertions)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import types
+
+import numpy as np
+import pytest
+
+from granularsap.bench import cli as bench_cli
+from granularsap.bench import harness, peers, workloads
+from granularsap.cli import main
+
+
+def brute_pairs(workload, frame=0):
+    """All pairs of a workload by the definition (minimum image, float64)."""
+    n = workload.n
+    i, j = np.triu_indices(n, k=1)
+    pairs = np.stack([i, j], axis=1).astype(np.int64)
+    return peers.exact_filter(workload, frame, pairs)
+
+
+class Brute(peers.Peer):
+    name = "brute"
+    description = "O(n^2) definition"
+
+    def run(self, frame):
+        return brute_pairs(self.workload, frame)
+
+
+class DropsOnePair(Brute):
+    """A deliberately wrong adapter: loses one pair."""
+
+    name = "wrong"
+
+    def run(self, frame):
+        return super().run(frame)[1:]
+
+
+class SwapsOnePair(Brute):
+    """Wrong in a way counts cannot see: same number of pairs, one different."""
+
+    name = "wrong-same-count"
+
+    def run(self, frame):
+        pairs = super().run(frame).copy()
+        pairs[0, 1] = next(j for j in range(self.workload.n)
+                           if j > pairs[0, 0] and not np.any((pairs[:, 0] == pairs[0, 0])
+                                                             & (pairs[:, 1] == j)))
+        return pairs
+
+
+class NotInstalled(Brute):
+    name = "not-installed"
+    module = "granularsap_no_such_module_for_tests"
+
+
+def _fake(name, base=Brute):
+    return type(name.title().replace("-", ""), (base,), {"name": name})()
+
+
+SMALL = {
+    "md-liquid": lambda: workloads.md_liquid(300, seed=1),
+    "md-liquid-open": lambda: workloads.md_liquid_open(300, seed=1),
+    "granular-polydisperse": lambda: workloads.granular_polydisperse(400, seed=1),
+    "paper-boxes": lambda: workloads.paper_boxes(300, seed=1, density=0.35),
+}
+
+
+class TestWorkloads:
+    def test_same_seed_same_arrays(self):
+        a = workloads.make("granular-polydisperse", 500, seed=3)
+        b = workloads.make("granular-polydisperse", 500, seed=3)
+        c = workloads.make("granular-polydisperse", 500, seed=4)
+        np.testing.assert_array_equal(a.positions, b.positions)
+        np.testing.assert_array_equal(a.radii, b.radii)
+        assert not np.array_equal(a.positions, c.positions)
+
+    def test_parameters(self):
+        md = workloads.md_liquid(1000)
+        assert md.n / np.prod(md.box[:3]) == pytest.approx(workloads.LJ_DENSITY)
+        assert md.cutoff == 2.8 and workloads.md_liquid_open(1000).box is None
+        gr = workloads.granular_polydisperse(2000)
+        phi = np.sum(4 / 3 * np.pi * gr.radii**3) / np.prod(gr.box[:3])
+        assert phi == pytest.approx(0.3)
+        assert gr.radii.min() >= 0.3 and gr.radii.max() <= 3.0
+        pb = workloads.paper_boxes(1000, density=0.2)
+        lower, upper = pb.boxes()
+        assert np.prod(upper - lower, axis=1).sum() / pb.params["world"] ** 3 \
+            == pytest.approx(0.2, rel=0.05)
+        tr = workloads.trajectory(300, n_frames=3)
+        assert len(tr.frames) == 3 and np.all(tr.frames[2] < tr.box[0])
+
+    def test_too_small_is_a_clear_error(self):
+        with pytest.raises(ValueError, match="md-liquid needs n >= "):
+            workloads.md_liquid(10)
+        with pytest.raises(ValueError, match="unknown workload 'md'"):
+            workloads.make("md", 100)
+
+    @pytest.mark.parametrize("text, value", [("1e4", 10_000), ("2^18", 2**18),
+                                             ("2**10", 1024), ("100k", 100_000), ("1M", 10**6),
+                                             ("12345", 12345)])
+    def test_sizes(self, text, value):
+        assert bench_cli.parse_size(text) == value
+
+    def test_bad_size(self):
+        with pytest.raises(ValueError, match="cannot read size 'lots'"):
+            bench_cli.parse_size("lots")
+
+
+class TestPeersAgreeWithDefinition:
+    """Every installed peer adapter returns exactly the brute-force pairs."""
+
+    @pytest.mark.parametrize("wl_name", list(SMALL))
+    @pytest.mark.parametrize("peer_name", [p for p in peers.PEERS if p != "granularsap"])
+    def test_peer(self, peer_name, wl_name):
+        peer = peers.PEERS[peer_name]()
+        why = peer.missing()
+        if why:
+            pytest.skip(f"{peer_name} not available: {why}")
+        wl = SMALL[wl_name]()
+        why = peer.unsupported(wl)
+        if why:
+            pytest.skip(why)
+        peer.setup(wl, 2)
+        got = peer.run(0)
+        assert got.dtype == np.int64 and np.all(got[:, 0] < got[:, 1])
+        assert harness.canonical(got, wl.n) == harness.canonical(brute_pairs(wl), wl.n)
+
+    def test_steady_state_over_a_trajectory(self):
+        wl = workloads.trajectory(300, n_frames=4, step=0.3)
+        peer = peers.GranularSAPSteady()
+        peer.setup(wl, 2)
+        for f in range(4):
+            got = peer.run(f)
+            assert harness.canonical(got, wl.n) == harness.canonical(brute_pairs(wl, f), wl.n)
+
+
+class TestAgreement:
+    def test_wrong_adapter_is_caught(self, capsys):
+        wl = SMALL["granular-polydisperse"]()
+        results = bench_cli.execute(
+            [("granular-polydisperse", 400)],
+            [_fake("granularsap"), _fake("scipy-like"), DropsOnePair(), SwapsOnePair()],
+            build=lambda name, n: wl, repeats=1, n_threads=1, max_seconds=60,
+            settings={})
+        wres = results[0]
+        assert wres.disagreements == ["wrong", "wrong-same-count"]
+        by = {r.peer: r for r in wres.results}
+        assert by["wrong"].agrees is False and by["wrong"].ratio is None
+        assert by["wrong-same-count"].pairs == by["granularsap"].pairs
+        assert by["wrong-same-count"].ratio is None
+        assert by["scipy-like"].agrees and by["scipy-like"].ratio is not None
+        out = capsys.readouterr().out
+        assert "!!! DISAGREEMENT on granular-polydisperse N=400" in out
+        assert "!!! wrong: " in out and "not reported as a win" in out
+        assert "!!! wrong-same-count:" in out and "same count, different pairs" in out
+        table = out[out.index("granular-polydisperse N=400  [contacts"):]
+        assert "DISAGREES" in table
+
+    def test_granularsap_disagreeing_gets_no_ratio(self):
+        wl = SMALL["md-liquid"]()
+        wrong_gsap = _fake("granularsap", DropsOnePair)
+        res = [harness.run_peer(p, wl, repeats=1) for p in
+               (wrong_gsap, _fake("peer-a"), _fake("peer-b"))]
+        wres = harness.judge(harness.WorkloadResult(
+            name=wl.name, label=wl.label, kind=wl.kind, n=wl.n, n_frames=1, params={},
+            results=res))
+        assert wres.disagreements == ["granularsap"]
+        assert wres.reference is None and wres.speedup_vs_fastest is None
+        assert all(r.ratio is None for r in wres.results)
+
+    def test_tie_has_no_consensus(self):
+        assert harness.find_consensus({"a": (1, "x"), "b": (2, "y")}) is None
+        assert harness.find_consensus({"a": (1, "x"), "b": (1, "x"), "c": (2, "y")}) \
+            == ["a", "b"]
+
+    def test_failing_peer_is_reported_not_fatal(self):
+        class Raises(Brute):
+            name = "raises"
+
+            def run(self, frame):
+                raise RuntimeError("boom")
+
+        res = harness.run_peer(Raises(), SMALL["md-liquid"](), repeats=1)
+        assert res.status == "error" and "RuntimeError: boom" in res.reason
+
+
+class TestCommand:
+    def test_missing_peer_is_skipped_with_a_message(self, capsys):
+        wl = SMALL["md-liquid"]()
+        results = bench_cli.execute(
+            [("md-liquid", 300)], [_fake("granularsap"), NotInstalled()],
+            build=lambda name, n: wl, repeats=1, n_threads=1, max_seconds=60, settings={})
+        out = capsys.readouterr().out
+        assert "skipping peer not-installed: not available (ModuleNotFoundError" in out
+        assert [r.peer for r in results[0].results] == ["granularsap"]
+
+    def test_json_and_png_are_written(self, tmp_path, capsys):
+        jpath, ppath = tmp_path / "bench.json", tmp_path / "bench.png"
+        rc = main(["bench", "md-liquid", "paper-boxes", "trajectory", "--sizes", "300",
+                   "--frames", "3", "--repeats", "1", "--threads", "1",
+                   "--peers", "scipy-ckdtree,vesin", "--json", str(jpath), "--plot", str(ppath)])
+        out = capsys.readouterr().out
+        assert rc == 0, out
+        doc = json.loads(jpath.read_text())
+        assert doc["schema"] == "granularsap-bench/1"
+        assert doc["machine"]["cpu_model"] and doc["machine"]["logical_cores"] >= 1
+        assert "numpy" in doc["machine"]["versions"]
+        labels = [w["label"] for w in doc["workloads"]]
+        assert labels == ["md-liquid N=300", "paper-boxes n=300 d=0.35",
+                          "trajectory N=300 x 3 frames"]
+        for w in doc["workloads"]:
+            names = [r["peer"] for r in w["results"]]
+            assert names[:2] == ["granularsap", "granularsap-steady"]
+            assert not w["disagreements"], w
+        assert ppath.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert "peer/gsap" in out
+
+    def test_unknown_peer(self, capsys):
+        assert main(["bench", "md-liquid", "--peers", "nope"]) == 2
+        assert "unknown peer 'nope'" in capsys.readouterr().err
+
+    def test_list(self, capsys):
+        assert main(["bench", "md-liquid", "--list"]) == 0
+        out = capsys.readouterr().out
+        assert "mda-nsgrid" in out and "freud-linkcell" in out
+
+    def test_paper_dispatches_to_the_engine_benchmark(self, monkeypatch):
+        seen = {}
+        fake = types.ModuleType("granularsap.bench.paper")
+        fake.run_paper = lambda args: seen.setdefault("quick", args.quick) and 0
+        monkeypatch.setitem(sys.modules, "granularsap.bench.paper", fake)
+        assert main(["bench", "paper", "--quick"]) == 0
+        assert seen == {"quick": True}
+
+    def test_paper_unavailable(self, monkeypatch, capsys):
+        monkeypatch.setitem(sys.modules, "granularsap.bench.paper", None)
+        assert main(["bench", "paper"]) == 1
+        assert "unavailable" in capsys.readouterr().err
+
+    def test_paper_is_run_on_its_own(self, capsys):
+        assert main(["bench", "paper", "md-liquid"]) == 2
+        assert "run 'paper' on its own" in capsys.readouterr().err
