@@ -82,7 +82,7 @@ def _setup_commands(frame, *, sphere, n_atoms, binsize, one):
     lines = [
         "units lj",
         "atom_style sphere" if sphere else "atom_style atomic",
-        "atom_modify map array",
+        "atom_modify map array sort 0 0.0",
         f"boundary {frame.boundary}",
         region,
         "create_box 1 box",
