@@ -25,8 +25,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import periodic
-from ._validate import as_coords, as_vector, check_n_threads
-from .particles import _search
+from ._validate import as_coords, check_n_threads
+from .particles import _as_radii, _search
 
 __all__ = ["neighbor_list", "primitive_neighbor_list"]
 
@@ -123,10 +123,10 @@ def primitive_neighbor_list(quantities, pbc, cell, positions, cutoff, numbers=No
         maxc = float(table.max()) if table.size else 0.0
         rad = np.full(n, 0.5 * maxc)
     elif np.ndim(cutoff) == 0:
-        c = as_vector(cutoff, "cutoff", 1)[0]
+        c = _as_radii(cutoff, 1, "cutoff")[0]
         rad = np.full(n, 0.5 * c)
     else:
-        rad = as_vector(cutoff, "cutoff", n)
+        rad = _as_radii(cutoff, n, "cutoff")
 
     # a hair of slack so that no candidate is lost to rounding in the kernel; the
     # strict ASE test below decides with ASE's own arithmetic

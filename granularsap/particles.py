@@ -43,7 +43,9 @@ def _check_range(reach, cell, pbc, what):
     """Raise if a pair could interact with more than one image of the other."""
     widths = periodic.perpendicular_widths(cell)
     for c in np.flatnonzero(pbc):
-        if reach > 0.5 * widths[c]:
+        # a relative hair of tolerance for the rounding in the widths; pairs whose
+        # two images tie at exactly half a width are deduplicated by _search
+        if reach > 0.5 * widths[c] * (1.0 + 1e-12):
             raise ValueError(
                 f"{what} {reach:.17g} exceeds half the smallest perpendicular cell width "
                 f"{0.5 * widths[c]:.17g} (width {widths[c]:.17g} across cell vector {c}); "
@@ -93,7 +95,7 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
         reach_max = 2.0 * (rad.max() if n else 0.0) + skin
         if minimum_image == "reduce":
             widths = periodic.perpendicular_widths(cell)
-            if reach_max <= 0.5 * widths[pbc].min():
+            if reach_max <= 0.5 * widths[pbc].min() * (1.0 + 1e-12):
                 minimum_image = True
         elif minimum_image:
             _check_range(reach_max, cell, pbc, what)
@@ -154,7 +156,8 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
     shift += nshift[a] - nshift[b]
     if periodic_run and minimum_image is not False and len(a):
         widths = periodic.perpendicular_widths(cell)
-        if minimum_image == "reduce" or 2.0 * (2.0 * rad.max() + skin) >= widths[pbc].min():
+        if (minimum_image == "reduce"
+                or 2.0 * (2.0 * rad.max() + skin) >= widths[pbc].min() * (1.0 - 1e-9)):
             # range exactly half a width: both images of a pair may tie
             key = a * n + b
             order = np.lexsort((dist, key))
@@ -163,6 +166,15 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
             order = order[first]
             a, b, shift, dist = a[order], b[order], shift[order], dist[order]
     return a, b, shift, dist, pos_d
+
+
+def _as_radii(radii, n, name="radii"):
+    """``as_vector`` plus a sign check whose message prints a plain float."""
+    arr = as_vector(radii, name, n, nonnegative=False)
+    if arr.size and arr.min() < 0:
+        bad = int(np.argmin(arr))
+        raise ValueError(f"{name} must be non-negative, got {float(arr[bad])!r} at index {bad}")
+    return arr
 
 
 def _pairs(a, b):
@@ -222,7 +234,7 @@ def sphere_contacts(positions, radii, *, skin=0.0, box=None, n_threads=None,
     [[0, 1], [0, 2]]
     """
     positions = as_coords(positions, "positions")
-    radii = as_vector(radii, "radii", len(positions))
+    radii = _as_radii(radii, len(positions))
     skin = as_scalar(skin, "skin")
     cell = periodic.as_cell(box)
     n_threads = check_n_threads(n_threads)
@@ -292,8 +304,11 @@ def clump_contacts(positions, radii, clump_ids, *, skin=0.0, box=None, n_threads
     Parameters
     ----------
     positions : (n, 3) array_like of float
-        Sphere centres.  In a periodic cell a clump may straddle the boundary;
-        each clump must span less than half the cell along every periodic axis.
+        Sphere centres.  In a periodic cell a clump may straddle the boundary
+        and its spheres may be wrapped independently: each sphere is placed at
+        the minimum image of its offset from the clump's first sphere, so every
+        clump must span less than half the cell along each periodic axis
+        (checked where the members make it detectable).
     radii : (n,) array_like of float or float
     clump_ids : (n,) array_like of int
         Body label of every sphere (any integers; spheres with equal labels
@@ -322,7 +337,7 @@ def clump_contacts(positions, radii, clump_ids, *, skin=0.0, box=None, n_threads
     """
     positions = as_coords(positions, "positions")
     n = len(positions)
-    radii = as_vector(radii, "radii", n)
+    radii = _as_radii(radii, n)
     skin = as_scalar(skin, "skin")
     ids = np.asarray(clump_ids)
     if ids.dtype.kind not in "iu":

@@ -188,6 +188,8 @@ def perpendicular_widths(cell):
     orthorhombic cell.
     """
     cell = np.asarray(cell, dtype=np.float64)
+    if _is_diagonal(cell):
+        return np.abs(np.diag(cell)).copy()
     vol = abs(np.linalg.det(cell))
     areas = np.array([np.linalg.norm(np.cross(cell[(c + 1) % 3], cell[(c + 2) % 3]))
                       for c in range(3)])

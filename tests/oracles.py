@@ -74,3 +74,59 @@ def brute_image_pairs(positions, cutoff, cell=None, pbc=(True, True, True), radi
                 out.append((i, j))
                 dist.append(d)
     return _as_pair_array(out), np.asarray(dist, dtype=np.float64)
+
+
+def brute_full_image_list(positions, cutoff, cell=None, pbc=(True, True, True), radii=None,
+                          self_interaction=False):
+    """Every ``(i, j, S)`` with ``|pos[j] - pos[i] + S @ cell| < reach`` (ASE semantics).
+
+    Full list (both directions), strict ``<``; ``reach`` is ``cutoff`` or, with
+    ``radii``, ``r_i + r_j`` (ASE per-atom cutoffs; ``cutoff`` ignored).  Positions
+    are used as given (not wrapped), like ASE's ``D``.  ``(i, i, 0)`` is listed
+    only with ``self_interaction``.  Returns ``(i, j, S, d)`` sorted by
+    ``(i, j, S)``.
+    """
+    pos = np.asarray(positions, dtype=np.float64)
+    n = len(pos)
+    rad = None if radii is None else np.asarray(radii, dtype=np.float64)
+    reach_max = cutoff if rad is None else (2 * rad.max() if n else 0.0)
+    reps = [range(0, 1)] * 3
+    if cell is not None:
+        cell = np.asarray(cell, dtype=np.float64)
+        vol = abs(np.linalg.det(cell))
+        span = np.ptp(pos, axis=0).max() if n else 0.0
+        reps = []
+        for k in range(3):
+            if not pbc[k]:
+                reps.append(range(0, 1))
+                continue
+            other = np.cross(cell[(k + 1) % 3], cell[(k + 2) % 3])
+            width = vol / np.linalg.norm(other)
+            m = int(np.ceil((reach_max + 2 * span) / width)) + 1
+            reps.append(range(-m, m + 1))
+    shifts = np.array([(a, b, c) for a in reps[0] for b in reps[1] for c in reps[2]],
+                      dtype=np.int64)
+    vecs = shifts @ (cell if cell is not None else np.zeros((3, 3)))
+    ii, jj, ss, dd = [], [], [], []
+    for i in range(n):
+        for j in range(n):
+            D = pos[j] - pos[i] + vecs
+            d = np.sqrt((D * D).sum(axis=1))
+            reach = cutoff if rad is None else rad[i] + rad[j]
+            ok = d < reach
+            if i == j:
+                zero = (shifts == 0).all(axis=1)
+                ok &= ~zero
+                if self_interaction:
+                    ok |= zero
+            for k in np.flatnonzero(ok):
+                ii.append(i)
+                jj.append(j)
+                ss.append(shifts[k])
+                dd.append(d[k])
+    i_ = np.asarray(ii, dtype=np.int64)
+    j_ = np.asarray(jj, dtype=np.int64)
+    s_ = np.asarray(ss, dtype=np.int64).reshape(-1, 3)
+    d_ = np.asarray(dd, dtype=np.float64)
+    order = np.lexsort((s_[:, 2], s_[:, 1], s_[:, 0], j_, i_))
+    return i_[order], j_[order], s_[order], d_[order]
