@@ -129,9 +129,12 @@ class TestPeersAgreeWithDefinition:
         assert got.dtype == np.int64 and np.all(got[:, 0] < got[:, 1])
         assert harness.canonical(got, wl.n) == harness.canonical(brute_pairs(wl), wl.n)
 
-    def test_steady_state_over_a_trajectory(self):
+    @pytest.mark.parametrize("peer_name", ["granularsap-steady", "vesin-verlet"])
+    def test_stateful_peer_over_a_trajectory(self, peer_name):
         wl = workloads.trajectory(300, n_frames=4, step=0.3)
-        peer = peers.GranularSAPSteady()
+        peer = peers.PEERS[peer_name]()
+        if peer.missing():
+            pytest.skip(f"{peer_name} not available: {peer.missing()}")
         peer.setup(wl, 2)
         for f in range(4):
             got = peer.run(f)

@@ -21,8 +21,12 @@ import os
 import re
 import shlex
 import sys
+import time
 
 from .workloads import WORKLOAD_NAMES, WORKLOADS
+
+#: seconds between progress lines inside one peer's timed runs
+PROGRESS_EVERY = 20.0
 
 
 def _usable_cores():
@@ -140,6 +144,27 @@ def _build(name, what, args, density):
     return workloads.make(name, what, seed=args.seed, density=density, n_frames=n_frames)
 
 
+class _Progress:
+    """Progress lines: one per peer, and one every PROGRESS_EVERY s of a long peer."""
+
+    def __init__(self):
+        self.last = time.perf_counter()
+
+    def peer_done(self, res):
+        self.last = time.perf_counter()
+        if res.status == "ok":
+            _out(f"  {res.peer:<20} {res.seconds:.4g} s median of {len(res.times)}, "
+                 f"{res.pairs} pairs")
+        else:
+            _out(f"  {res.peer:<20} {res.status}: {res.reason}")
+
+    def tick(self, peer, done, planned, seconds):
+        now = time.perf_counter()
+        if now - self.last >= PROGRESS_EVERY and done < planned:
+            self.last = now
+            _out(f"  {peer.name:<20} ... {done}/{planned} timed runs, {seconds:.1f} s")
+
+
 def list_peers(peers):
     for p in peers:
         why = p.missing()
@@ -190,15 +215,10 @@ def execute(specs, peers, *, build, repeats, n_threads, max_seconds, settings,
             else:
                 run_peers.append(p)
 
-        def progress(res):
-            if res.status == "ok":
-                _out(f"  {res.peer:<20} {res.seconds:.4g} s median of {len(res.times)}, "
-                     f"{res.pairs} pairs")
-            else:
-                _out(f"  {res.peer:<20} {res.status}: {res.reason}")
-
+        lines = _Progress()
         wres = harness.run_workload(workload, run_peers, repeats=repeats, n_threads=n_threads,
-                                    max_seconds=max_seconds, progress=progress)
+                                    max_seconds=max_seconds, progress=lines.peer_done,
+                                    tick=lines.tick)
         for r in wres.results:
             if r.status == "ok" and r.warmup_seconds and r.warmup_seconds > max_seconds:
                 slow[family, r.peer] = (f"took {r.warmup_seconds:.1f} s at N={workload.n} "

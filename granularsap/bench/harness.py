@@ -202,8 +202,12 @@ def _jsonable(obj):
 # ---------------------------------------------------------------------- running
 
 
-def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0):
-    """Run one peer on one workload; return a :class:`PeerResult`."""
+def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0, tick=None):
+    """Run one peer on one workload; return a :class:`PeerResult`.
+
+    ``tick(done, total, seconds_so_far)`` is called after every timed run
+    (progress lines of long runs).
+    """
     res = PeerResult(peer=peer.name, status="ok", description=peer.description,
                      version=peer.version(), threads=peer.threads_used(n_threads))
     why = peer.unsupported(workload)
@@ -239,6 +243,8 @@ def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0):
             res.times.append(t1 - t0)
             res.cpu_times.append(c1 - c0)
             spent += t1 - t0
+            if tick is not None:
+                tick(step + 1, len(plan), spent)
             if mem.delta is not None:
                 peaks.append(mem.delta)
             ph = _phase_seconds(peer.last_stats())
@@ -308,15 +314,17 @@ def judge(wres):
 
 
 def run_workload(workload, peers, *, repeats=5, n_threads=1, max_seconds=120.0,
-                 progress=None):
+                 progress=None, tick=None):
     """Run every peer on ``workload``; return a judged :class:`WorkloadResult`.
 
-    ``progress(peer_result)`` is called after each peer, for the CLI's lines.
+    ``progress(peer_result)`` is called after each peer and ``tick(peer, done,
+    total, seconds)`` after each timed run, for the CLI's progress lines.
     """
     results = []
     for peer in peers:
+        peer_tick = None if tick is None else (lambda d, t, s, p=peer: tick(p, d, t, s))
         res = run_peer(peer, workload, repeats=repeats, n_threads=n_threads,
-                       max_seconds=max_seconds)
+                       max_seconds=max_seconds, tick=peer_tick)
         results.append(res)
         if progress is not None:
             progress(res)

@@ -462,6 +462,47 @@ class VesinPeer(CutoffPeer):
         return _orient(pairs[:, 0], pairs[:, 1]), d
 
 
+class VesinVerlet(Peer):
+    """vesin.NeighborList with ``skin``: Verlet caching between trajectory frames.
+
+    vesin keeps the list of pairs within ``cutoff + skin`` until some atom has
+    moved more than ``skin / 2`` and filters it to ``cutoff`` on every call.
+    Trajectories only (on a repeated identical frame the cache would always hit).
+    """
+
+    name = "vesin-verlet"
+    module = "vesin"
+    dist = "vesin"
+    description = "vesin NeighborList(cutoff, skin=0.3, n_threads=T) reused across frames"
+    kinds = ("cutoff",)
+    stateful = True
+    threaded = True
+    skin = 0.3
+
+    def unsupported(self, workload):
+        why = super().unsupported(workload)
+        if why is None and len(workload.frames) < 2:
+            return "Verlet caching is for trajectories only"
+        return why
+
+    def setup(self, workload, n_threads):
+        from vesin import NeighborList
+
+        super().setup(workload, n_threads)
+        self.nl = NeighborList(cutoff=workload.cutoff, full_list=False, skin=self.skin,
+                               n_threads=n_threads)
+        if workload.box is None:
+            self.cell, self.periodic = np.zeros((3, 3)), False
+        else:
+            self.cell, self.periodic = _cell_matrix(workload.box), True
+
+    def run(self, frame):
+        (pairs,) = self.nl.compute(self.workload.frames[frame], self.cell, self.periodic,
+                                   quantities="P")
+        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        return _orient(pairs[:, 0], pairs[:, 1])
+
+
 class FreudPeer(CutoffPeer):
     """freud.locality.AABBQuery / LinkCell queried with r_max and exclude_ii.
 
@@ -548,7 +589,7 @@ class LammpsPeer(CutoffPeer):
 #: every peer the bench command knows, in report order
 PEERS = {cls.name: cls for cls in (
     GranularSAP, GranularSAPSteady, MDANSGrid, MDAPKDTree, ScipyCKDTree, ASEPeer,
-    MatscipyPeer, VesinPeer, FreudAABB, FreudLinkCell, LammpsPeer,
+    MatscipyPeer, VesinPeer, VesinVerlet, FreudAABB, FreudLinkCell, LammpsPeer,
 )}
 
 #: names of the granularsap adapters (the reference of the ratios)
