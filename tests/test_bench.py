@@ -222,12 +222,16 @@ class TestCommand:
         assert ppath.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert "peer/gsap" in out
 
+    def test_no_workload(self, capsys):
+        assert main(["bench"]) == 2
+        assert "give at least one WORKLOAD" in capsys.readouterr().err
+
     def test_unknown_peer(self, capsys):
         assert main(["bench", "md-liquid", "--peers", "nope"]) == 2
         assert "unknown peer 'nope'" in capsys.readouterr().err
 
     def test_list(self, capsys):
-        assert main(["bench", "md-liquid", "--list"]) == 0
+        assert main(["bench", "--list"]) == 0
         out = capsys.readouterr().out
         assert "mda-nsgrid" in out and "freud-linkcell" in out
 

@@ -63,7 +63,7 @@ def _split(values):
 
 
 def add_arguments(parser):
-    parser.add_argument("workloads", nargs="+", metavar="WORKLOAD",
+    parser.add_argument("workloads", nargs="*", metavar="WORKLOAD",
                         help="one or more of: " + ", ".join(WORKLOAD_NAMES)
                         + ", all (every generated workload and data/)")
     parser.add_argument("--sizes", nargs="+", metavar="N",
@@ -261,6 +261,8 @@ def run(args) -> int:
         _out("peers:")
         list_peers(make_peers())
         return 0
+    if not args.workloads:
+        raise ValueError("give at least one WORKLOAD: " + ", ".join(WORKLOAD_NAMES) + ", all")
     if "paper" in args.workloads:
         if len(args.workloads) > 1:
             raise ValueError("run 'paper' on its own: granularsap bench paper [options]")
