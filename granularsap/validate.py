@@ -68,7 +68,8 @@ def _against(text):
     bad = [t for t in names if t not in REFERENCES]
     if bad or not names:
         raise argparse.ArgumentTypeError(
-            f"unknown reference {', '.join(bad) or text!r}; choose from {', '.join(REFERENCES)}")
+            f"unknown reference {', '.join(map(repr, bad)) or repr(text)}; choose from "
+            f"{', '.join(REFERENCES)}")
     return list(dict.fromkeys(names))
 
 

@@ -1,0 +1,157 @@
+"""granularsap validate: exit codes, the per-frame table, ties reported as ties."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import granularsap
+from granularsap.cli import main
+
+DATA = Path(__file__).resolve().parent.parent / "data"
+pytestmark = pytest.mark.lammps
+
+
+def _write_dump(path, frames, *, bounds="ff ff ff", box=((0, 10), (0, 10), (0, 10)),
+                radius=None):
+    """A minimal LAMMPS text dump: frames is a list of (n, 3) arrays."""
+    lines = []
+    for step, pos in enumerate(frames):
+        lines += ["ITEM: TIMESTEP", str(step), "ITEM: NUMBER OF ATOMS", str(len(pos)),
+                  f"ITEM: BOX BOUNDS {bounds}"]
+        lines += [f"{lo} {hi}" for lo, hi in box]
+        cols = "id type x y z" + (" radius" if radius is not None else "")
+        lines.append(f"ITEM: ATOMS {cols}")
+        for k, (x, y, z) in enumerate(pos):
+            extra = f" {float(radius[k])!r}" if radius is not None else ""
+            lines.append(f"{k + 1} 1 {float(x)!r} {float(y)!r} {float(z)!r}{extra}")
+    path.write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+class TestBundledData:
+    @pytest.mark.parametrize("args", [
+        ["data/lj.dump", "--cutoff", "2.5"],
+        ["data/pour.dump"],                      # radii from the radius column
+        ["data/pour.dump", "--cutoff", "1.2"],
+        ["data/clumps.dump", "--radius-column", "radius", "--skin", "0.1"],
+    ])
+    def test_exits_zero_against_lammps(self, args, capsys):
+        args = [str(DATA / Path(args[0]).name), *args[1:]]
+        assert main(["validate", *args, "--against", "lammps"]) == 0
+        out = capsys.readouterr().out
+        assert "identical" in out
+        assert "granularsap" in out.splitlines()[1] and "lammps" in out.splitlines()[1]
+
+    def test_lj_identical_to_mdanalysis_and_lammps(self, capsys):
+        assert main(["validate", str(DATA / "lj.dump"), "--cutoff", "2.5",
+                     "--frames", "0:11:5"]) == 0
+        out = capsys.readouterr().out
+        rows = [line.split() for line in out.splitlines()[2:5]]
+        assert [r[0] for r in rows] == ["0", "5", "10"]
+        for r in rows:  # granularsap, lammps, +0/-0, mdanalysis, +0/-0, 0 ties
+            assert r[3] == r[4] == r[6] and r[5] == r[7] == "+0/-0" and r[8] == "0"
+
+    def test_float32_ties_with_mdanalysis_are_reported(self, capsys):
+        # the settled pour has contacts within 1e-7 of r_i + r_j; MDAnalysis rounds to float32
+        rc = main(["validate", str(DATA / "pour.dump"), "--frames", "12:13",
+                   "--against", "mdanalysis"])
+        out = capsys.readouterr().out
+        assert rc == 3
+        assert "tie: |d - reach|" in out and "NOT a tie" not in out
+        assert "0 differing pair(s) beyond rounding" in out
+        assert main(["validate", str(DATA / "pour.dump"), "--frames", "12:13",
+                     "--against", "mdanalysis", "--allow-ties"]) == 0
+
+
+class TestDifferencesAreCaught:
+    def test_perturbed_pair_list_fails(self, monkeypatch, capsys):
+        real = granularsap.neighbor_pairs
+
+        def drop_one(*args, **kwargs):
+            pairs = real(*args, **kwargs)
+            return pairs[1:]
+
+        monkeypatch.setattr(granularsap, "neighbor_pairs", drop_one)
+        rc = main(["validate", str(DATA / "lj.dump"), "--cutoff", "2.5", "--frames", "3:5"])
+        out = capsys.readouterr().out
+        assert rc == 1
+        assert out.count("+0/-1") == 4  # both frames, both references
+        assert "lammps only" in out and "mdanalysis only" in out and "NOT a tie" in out
+
+    def test_extra_pair_fails(self, monkeypatch, capsys):
+        real = granularsap.sphere_contacts
+
+        def add_one(*args, **kwargs):
+            pairs = real(*args, **kwargs)
+            return np.vstack([pairs, [[0, 1999]]])
+
+        monkeypatch.setattr(granularsap, "sphere_contacts", add_one)
+        rc = main(["validate", str(DATA / "pour.dump"), "--frames", "20",
+                   "--against", "lammps"])
+        assert rc == 1
+        assert "granularsap only" in capsys.readouterr().out
+
+    def test_tie_at_exact_cutoff_is_reported_as_tie(self, tmp_path, monkeypatch, capsys):
+        # d == 2.5 exactly in float64; a backend using LAMMPS's pair-style test
+        # (rsq < cutsq, strict) drops it: that is a tie, not a bug
+        pos = np.array([[1.0, 1.0, 1.0], [2.5, 3.0, 1.0], [8.0, 8.0, 8.0]])
+        dump = _write_dump(tmp_path / "tie.dump", [pos])
+        real = granularsap.neighbor_pairs
+
+        def strict(positions, cutoff, **kwargs):
+            pairs = real(positions, cutoff, **kwargs)
+            d = np.linalg.norm(positions[pairs[:, 1]] - positions[pairs[:, 0]], axis=1)
+            return pairs[d < cutoff]
+
+        monkeypatch.setattr(granularsap, "neighbor_pairs", strict)
+        rc = main(["validate", dump, "--cutoff", "2.5", "--against", "lammps"])
+        out = capsys.readouterr().out
+        assert rc == 3
+        assert "pair (0, 1) lammps only: d = 2.5, reach = 2.5 (tie" in out
+        assert "1 tie(s) at the cutoff" in out
+        assert main(["validate", dump, "--cutoff", "2.5", "--against", "lammps",
+                     "--allow-ties"]) == 0
+
+
+class TestUsage:
+    def test_needs_cutoff_or_radii(self, tmp_path, capsys):
+        dump = _write_dump(tmp_path / "a.dump", [np.zeros((2, 3))])
+        assert main(["validate", dump]) == 2
+        assert "give --cutoff C or --radius-column NAME" in capsys.readouterr().err
+
+    def test_unknown_radius_column(self, tmp_path, capsys):
+        dump = _write_dump(tmp_path / "a.dump", [np.zeros((2, 3))])
+        assert main(["validate", dump, "--radius-column", "diam"]) == 2
+        assert "no per-particle column 'diam'" in capsys.readouterr().err
+
+    def test_unknown_reference(self, capsys):
+        with pytest.raises(SystemExit) as exc:
+            main(["validate", "x.dump", "--cutoff", "1", "--against", "lammps,gromacs"])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert "unknown reference 'gromacs'; choose from lammps, mdanalysis" in err
+
+    def test_negative_cutoff(self, capsys):
+        with pytest.raises(SystemExit):
+            main(["validate", "x.dump", "--cutoff", "-1"])
+        assert "expected a finite number >= 0" in capsys.readouterr().err
+
+    def test_missing_file(self, capsys):
+        assert main(["validate", "no-such.dump", "--cutoff", "1"]) == 2
+        assert "does not exist" in capsys.readouterr().err
+
+    def test_mixed_periodicity(self, tmp_path, capsys):
+        pos = np.array([[1.0, 1.0, 1.0], [2.0, 1.0, 1.0]])
+        dump = _write_dump(tmp_path / "m.dump", [pos], bounds="pp pp ff")
+        assert main(["validate", dump, "--cutoff", "1.5"]) == 2
+        assert "mixed periodicity" in capsys.readouterr().err
+
+    def test_radius_column_with_skin(self, tmp_path, capsys):
+        pos = np.array([[1.0, 1.0, 1.0], [2.0, 1.0, 1.0], [5.0, 5.0, 5.0]])
+        dump = _write_dump(tmp_path / "r.dump", [pos, pos + 0.5], radius=[0.5, 0.4, 0.3])
+        assert main(["validate", dump, "--skin", "0.1"]) == 0
+        out = capsys.readouterr().out
+        assert "sphere contacts d <= r_i + r_j + 0.1 (radii: radius)" in out
