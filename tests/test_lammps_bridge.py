@@ -163,3 +163,18 @@ class TestErrors:
             lammps_bridge.sphere_contacts(np.zeros((2, 3)), [1.0, 1.0, 1.0])
         with pytest.raises(ValueError, match="skin must be non-negative"):
             lammps_bridge.sphere_contacts(np.zeros((2, 3)), 1.0, skin=-0.1)
+
+
+class TestLiveExample:
+    def test_lammps_live_agrees(self, capsys):
+        import importlib.util
+        from pathlib import Path
+
+        path = Path(__file__).resolve().parent.parent / "examples" / "lammps_live.py"
+        spec = importlib.util.spec_from_file_location("lammps_live", path)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        assert module.main(["--spheres", "400", "--chunks", "2", "--steps", "300"]) == 0
+        out = capsys.readouterr().out
+        assert "all chunks agree" in out
+        assert out.count(" yes ") == 2
