@@ -6,7 +6,7 @@ A throw-away LAMMPS instance (serial, ``units lj``) gets a box equal to the
 caller's cell (rotated into LAMMPS's restricted-triclinic form, see
 :mod:`lammps_bridge._cell`) or, for open boundaries, a fixed (``f``) box with
 free space around the particles.  A pair style that computes nothing
-(``pair_style zero`` for a distance cutoff; ``pair_style gran/hooke`` with
+(``pair_style zero`` (half list) for a distance cutoff; ``pair_style gran/hooke`` with
 ``atom_style sphere`` for radii) makes LAMMPS build its neighbour list with
 ``neighbor <skin> bin``.  After ``run 0`` the list is read through the Python
 API (``find_pair_neighlist`` and ``numpy.get_neighlist``); entries that point
@@ -123,7 +123,7 @@ def _run_lammps(frame, *, cutoff=None, radii=None, skin=0.0):
                 lmp.command("pair_coeff * *")
                 lmp.command(f"neighbor {_f(skin)} bin")
             else:
-                lmp.command(f"pair_style zero {_f(cutoff)} full")
+                lmp.command(f"pair_style zero {_f(cutoff)}")
                 lmp.command("pair_coeff * *")
                 lmp.command("neighbor 0.0 bin")
             ids = np.arange(1, n + 1, dtype=np.int64)
@@ -139,11 +139,15 @@ def _run_lammps(frame, *, cutoff=None, radii=None, skin=0.0):
                 mass_view[:nlocal] = 1.0
             try:
                 lmp.command("run 0 post no")
-            except Exception as exc:  # LAMMPS reports an overflow as an exception
-                if "overflow" in str(exc) and one < 10 * n + 2000:
-                    one *= 4
-                    continue
-                raise
+            except Exception as exc:  # LAMMPS reports its errors as bare Exceptions
+                msg = str(exc)
+                if "overflow" in msg:  # more neighbours per atom than `one`: retry
+                    nall = lmp.extract_setting("nlocal") + lmp.extract_setting("nghost")
+                    if one <= nall:
+                        one = min(4 * one, nall + 1)
+                        continue
+                raise RuntimeError(f"LAMMPS failed to build the neighbour list: {msg}") \
+                    from exc
             nlocal = lmp.extract_setting("nlocal")
             nall = nlocal + lmp.extract_setting("nghost")
             x = np.array(lmp.numpy.extract_atom("x", nelem=nall)[:nall], dtype=np.float64)
@@ -181,20 +185,23 @@ def _run_lammps(frame, *, cutoff=None, radii=None, skin=0.0):
     return ti, tj, shift, dvec_lmp
 
 
-def _finish(ti, tj, dist, keep, return_distances):
+def _finish(ti, tj, dist, keep, return_distances, n):
+    """Unique pairs i < j (smallest distance per pair), sorted; self-images dropped."""
     ti, tj, dist = ti[keep], tj[keep], dist[keep]
     not_self = ti != tj
-    a = np.minimum(ti, tj)[not_self]
-    b = np.maximum(ti, tj)[not_self]
-    dist = dist[not_self]
-    if len(a) == 0:
+    key = np.minimum(ti, tj)[not_self] * n + np.maximum(ti, tj)[not_self]
+    if len(key) == 0:
         return _empty(return_distances)
-    order = np.lexsort((dist, b, a))
-    a, b, dist = a[order], b[order], dist[order]
-    first = np.ones(len(a), dtype=bool)
-    first[1:] = (a[1:] != a[:-1]) | (b[1:] != b[:-1])
-    pairs = np.stack([a[first], b[first]], axis=1).astype(np.int64)
-    return (pairs, dist[first]) if return_distances else pairs
+    order = np.argsort(key, kind="stable")
+    key = key[order]
+    first = np.ones(len(key), dtype=bool)
+    first[1:] = key[1:] != key[:-1]
+    ukey = key[first]
+    pairs = np.stack([ukey // n, ukey % n], axis=1).astype(np.int64)
+    if not return_distances:
+        return pairs
+    dmin = np.minimum.reduceat(dist[not_self][order], np.flatnonzero(first))
+    return pairs, dmin
 
 
 def _prepare(positions, box, pbc, reach):
@@ -262,10 +269,12 @@ def neighbor_pairs(positions, cutoff, box=None, *, pbc=None, raw=False,
         dist = np.sqrt(np.einsum("ij,ij->i", dvec_lmp, dvec_lmp))
         keep = np.ones(len(ti), dtype=bool)
     else:
-        dvec = positions[tj] - positions[ti] + shift @ frame.vectors
+        dvec = positions[tj] - positions[ti]
+        if frame.n_periodic:
+            dvec += shift @ frame.vectors
         dist = np.sqrt(np.einsum("ij,ij->i", dvec, dvec))
         keep = dist <= cutoff
-    return _finish(ti, tj, dist, keep, return_distances)
+    return _finish(ti, tj, dist, keep, return_distances, len(positions))
 
 
 def sphere_contacts(positions, radii, *, skin=0.0, box=None, pbc=None, raw=False,
@@ -317,7 +326,9 @@ def sphere_contacts(positions, radii, *, skin=0.0, box=None, pbc=None, raw=False
         dist = np.sqrt(np.einsum("ij,ij->i", dvec_lmp, dvec_lmp))
         keep = np.ones(len(ti), dtype=bool)
     else:
-        dvec = positions[tj] - positions[ti] + shift @ frame.vectors
+        dvec = positions[tj] - positions[ti]
+        if frame.n_periodic:
+            dvec += shift @ frame.vectors
         dist = np.sqrt(np.einsum("ij,ij->i", dvec, dvec))
         keep = dist <= radii[ti] + radii[tj] + skin
-    return _finish(ti, tj, dist, keep, return_distances)
+    return _finish(ti, tj, dist, keep, return_distances, len(positions))

@@ -107,6 +107,27 @@ class TestNeighborPairsOracle:
         pairs, d = lammps_bridge.neighbor_pairs(np.zeros((n, 3)), 1.0, return_distances=True)
         assert pairs.shape == (0, 2) and pairs.dtype == np.int64 and d.shape == (0,)
 
+    @pytest.mark.parametrize("seed", [0, 1, 2])
+    def test_rotation_and_reflection_of_cell_and_positions(self, seed):
+        # any orientation of the same crystal, proper or improper: same pairs
+        pos, box, _, cell, _ = _case("triclinic", seed=seed)
+        ref = lammps_bridge.neighbor_pairs(pos, 2.2, box)
+        q, r = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+        q = q * np.sign(np.diag(r))  # a random orthogonal matrix, det +1 or -1
+        got = lammps_bridge.neighbor_pairs(pos @ q.T, 2.2, cell @ q.T)
+        np.testing.assert_array_equal(got, ref)
+
+    def test_neighbour_overflow_is_retried(self):
+        # ~150 images of ~60 atoms within the cutoff: more than LAMMPS's default
+        # `one 2000` neighbours per atom, so the first build overflows
+        rng = np.random.default_rng(4)
+        pos = rng.random((60, 3)) * 0.3
+        cell = np.diag([0.3, 0.31, 0.32])
+        ref, ref_d = brute_image_pairs(pos, 1.0, cell)
+        got, got_d = lammps_bridge.neighbor_pairs(pos, 1.0, cell, return_distances=True)
+        np.testing.assert_array_equal(got, ref)
+        np.testing.assert_allclose(got_d, ref_d, rtol=1e-12)
+
     def test_coincident_points_and_zero_cutoff(self):
         pos = np.array([[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [2.0, 1.0, 1.0]])
         np.testing.assert_array_equal(lammps_bridge.neighbor_pairs(pos, 0.0), [[0, 1]])
