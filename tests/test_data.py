@@ -83,6 +83,17 @@ class TestContents:
         for mol in tmp_path.glob("*.mol"):
             assert mol.read_text() == (DATA / mol.name).read_text()
 
+    def test_generator_errors(self, tmp_path):
+        with pytest.raises(ValueError, match="unknown system 'sand'; choose one of"):
+            generate.write_inputs("sand", tmp_path)
+
+        class NoRigid:
+            def has_package(self, name):
+                return name != "RIGID"
+
+        with pytest.raises(RuntimeError, match="needs the LAMMPS package.*RIGID"):
+            generate._require_packages(NoRigid(), "clumps")
+
     def test_readme_describes_every_file(self):
         readme = (DATA / "README.md").read_text()
         for path in DATA.iterdir():

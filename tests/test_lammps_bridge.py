@@ -117,14 +117,24 @@ class TestNeighborPairsOracle:
         got = lammps_bridge.neighbor_pairs(pos @ q.T, 2.2, cell @ q.T)
         np.testing.assert_array_equal(got, ref)
 
-    def test_neighbour_overflow_is_retried(self):
+    def test_neighbour_overflow_is_retried(self, monkeypatch):
         # ~150 images of ~60 atoms within the cutoff: more than LAMMPS's default
         # `one 2000` neighbours per atom, so the first build overflows
+        from lammps_bridge import neighbors
+
+        started = []
+
+        def counting(**kwargs):
+            started.append(1)
+            return lammps_bridge.new_lammps(**kwargs)
+
+        monkeypatch.setattr(neighbors, "new_lammps", counting)
         rng = np.random.default_rng(4)
         pos = rng.random((60, 3)) * 0.3
         cell = np.diag([0.3, 0.31, 0.32])
         ref, ref_d = brute_image_pairs(pos, 1.0, cell)
         got, got_d = lammps_bridge.neighbor_pairs(pos, 1.0, cell, return_distances=True)
+        assert len(started) == 2
         np.testing.assert_array_equal(got, ref)
         np.testing.assert_allclose(got_d, ref_d, rtol=1e-12)
 
