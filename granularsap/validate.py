@@ -1,23 +1,19 @@
 """Compare granularsap's pairs with LAMMPS's and MDAnalysis's, frame by frame.
 
-For every frame of TRAJ, granularsap finds the pairs within ``--cutoff`` (or
-the sphere contacts ``d <= r_i + r_j + skin`` with radii from
-``--radius-column``); each reference in ``--against`` does the same:
+For every frame of TRAJ, granularsap finds the pairs within --cutoff (or the
+sphere contacts d <= r_i + r_j + skin, radii from --radius-column) and each
+reference in --against does the same.  lammps: LAMMPS's own neighbour list
+through lammps_bridge (pair_style zero for a cutoff, a granular size list for
+radii), every candidate re-tested with d <= reach in float64 (docs/lammps.md
+says what LAMMPS counts).  mdanalysis: MDAnalysis.lib.distances.
+self_capped_distance, float32 inside; for radii its pairs within
+2 max(r) + skin, filtered with its own distances.
 
-lammps
-    LAMMPS's own neighbour list (``lammps_bridge``): ``pair_style zero`` for a
-    cutoff, a granular size list for radii; every candidate is re-tested with
-    ``d <= reach`` in float64 (see docs/lammps.md for what LAMMPS counts).
-mdanalysis
-    ``MDAnalysis.lib.distances.self_capped_distance`` (float32 internally);
-    for radii, its pairs within ``2 max(r) + skin`` are filtered with its own
-    distances.
-
-A table gives, per frame, the pairs found by each and the differences
-(``+a/-b``: ``a`` pairs only granularsap has, ``b`` only the reference has).
-A differing pair whose float64 distance lies within the reference's rounding
-of the cutoff is a *tie* and is reported in its own column; every differing
-pair is listed below the table with its distance.
+A table gives, per frame, the pairs found by each and the differences (+a/-b:
+a pairs only granularsap has, b only the reference has).  A differing pair
+whose float64 distance lies within the reference's rounding of the cutoff is a
+tie and is counted in its own column; every differing pair is listed below the
+table with its distance and whether it is a tie.
 
 Exit codes: 0 every frame identical; 1 some pair differs beyond rounding;
 3 the only differences are ties at the cutoff (0 with --allow-ties);
