@@ -32,6 +32,8 @@ _BUCKETS_PER_THREAD = 8
 #: Boxes below which the sequential path is used (parallel start-up dominates).
 _PARALLEL_MIN = 4096
 MAX_BOXES = (1 << 30) - 1
+#: Leaf bits of one pairing partition's sharded SuccTree (2**21 bits = 256 KiB).
+_PAIR_TREE_BITS = 1 << 21
 
 
 def _parse_axes(axes):
@@ -113,6 +115,9 @@ class SweepAndPrune:
         self.swap_threshold = float(swap_threshold)
         if not self.swap_threshold > 0:
             raise ValueError(f"swap_threshold must be positive, got {swap_threshold!r}")
+        #: Most bins of the third-axis sharding of the pairing active lists
+        #: (1 = the paper's Algorithm 4 exactly).
+        self.max_bins = 64
         self._path = None  # "sequential" | "parallel" | None (choose by size/threads)
         self._partitions = None  # override of the number of partitions (tests)
         self._n = -1
@@ -134,15 +139,22 @@ class SweepAndPrune:
         self._n = n
         self._layout = layout
         n2 = 2 * n
-        self._keys = np.empty(n2, np.uint64)
-        self._keys_tmp = np.empty(n2, np.uint64)
-        self._idx_tmp = np.empty(n2, np.int32)
+        # One scratch block: sort keys, their ping-pong copy and index scratch
+        # during sorting; the routed pairing events afterwards.
+        self._scratch = np.empty(5 * n + 2, np.uint64)
+        self._keys = self._scratch[:n2]
+        self._keys_tmp = self._scratch[n2:2 * n2]
+        self._idx_tmp = self._scratch[2 * n2:2 * n2 + n].view(np.int32)
+        self._events = self._scratch.view(np.int64)[:2 * ((5 * n + 2) // 2)].reshape(-1, 2)
+        self._pair_layout = None
         self._ix = np.empty(n2, np.int32)
         self._iy = np.empty(n2, np.int32)
-        self._rank = np.empty(n, np.int32)
+        # Per object: rank, candidate bounds L and U, third-axis bin.
+        self._info = np.empty((n, 4), np.int32)
+        self._rank = self._info[:, 0]
+        self._lcand = self._info[:, 1]
+        self._ucand = self._info[:, 2]
         self._rinv = np.empty(n, np.int32)
-        self._lcand = np.empty(n, np.int32)
-        self._ucand = np.empty(n, np.int32)
         self._br = np.empty((n, 4), np.float64)
         self._hist = np.empty((parts, buckets), np.int64)
         self._starts = np.empty(buckets + 1, np.int64)
@@ -150,9 +162,6 @@ class SweepAndPrune:
         self._tested = np.zeros(parts, np.int64)
         self._off_full = st.layout(n)
         self._trees_cand = np.zeros((parts, self._off_full[-1]), np.uint64)
-        delta = (n + parts - 1) // parts
-        self._off_part = st.layout(delta)
-        self._trees_pair = np.zeros((parts, self._off_part[-1]), np.uint64)
         self._out = np.empty((parts, 0), np.int64)
         return True
 
@@ -245,38 +254,73 @@ class SweepAndPrune:
                     break
                 self._out = self._grow(self._out, 1, cnt + cnt // 4)
             self._counts[0] = cnt
+            counts = self._counts[:1]
         else:
-            sw.candidates_parallel(self._ix, n, self._rank, self._rinv, self._lcand,
-                                   self._ucand, self._trees_cand, self._off_full,
-                                   self._counts)
+            sw.candidates_parallel(self._ix, n, self._info, self._rinv, self._trees_cand,
+                                   self._off_full, self._counts)
             t2 = time.perf_counter()
             cand_s = t2 - t1
-            ev = self._ix  # the primary order is no longer needed: reuse its memory
-            evlu = self._keys.view(np.int64)
-            sw.gather_parallel(self._iy, n, lower, upper, a0, a2, self._rank, self._rinv,
-                               self._lcand, self._ucand, self._br, ev, evlu)
-            self._out = self._grow(self._out, parts, cap)
-            todo = np.ones(parts, np.bool_)
+            z0, inv_h, reach, nbins = sw.third_axis_bins(lower, upper, a2, self.max_bins)
+            pparts = self._pair_parts(n, threads, nbins)
+            delta = (n + pparts - 1) // pparts
+            if self._pair_layout != (pparts, nbins):
+                self._pair_layout = (pparts, nbins)
+                self._off_part = st.layout(delta)
+                self._trees_pair = np.empty((pparts, nbins * self._off_part[-1]), np.uint64)
+                self._gather_hist = np.empty((threads, pparts), np.int64)
+                self._pstarts = np.empty(pparts + 1, np.int64)
+                self._pcounts = np.zeros(pparts, np.int64)
+                self._ptested = np.zeros(pparts, np.int64)
+                self._pair_hint = None
+            if self._gather_hist.shape[0] != threads:
+                self._gather_hist = np.empty((threads, pparts), np.int64)
+            # The sort scratch is free now: it holds the routed event stream.
+            events = self._events
             while True:
-                sw.pairing_parallel(ev, evlu, n, self._br, self._rinv, self._trees_pair,
-                                    self._off_part, self._out, self._counts, self._tested,
-                                    todo)
-                need = int(self._counts.max())
+                need = sw.gather_parallel(self._iy, n, lower, upper, a0, a2, self._info,
+                                          self._rinv, self._br,
+                                          z0, inv_h, nbins, delta, pparts,
+                                          self._gather_hist, self._pstarts, events)
+                if need <= events.shape[0]:
+                    break
+                self._events_extra = np.empty((need + need // 8, 2), np.int64)
+                events = self._events = self._events_extra
+            stats["bins"] = nbins
+            stats["pair_partitions"] = pparts
+            stats["events"] = int(need)
+            cap = self._capacity(n, pparts)
+            self._out = self._grow(self._out, pparts, cap)
+            todo = np.ones(pparts, np.bool_)
+            while True:
+                sw.pairing_parallel(events, self._pstarts, n, self._br, self._rinv,
+                                    self._trees_pair, self._off_part, nbins, z0, inv_h,
+                                    reach, self._out, self._pcounts, self._ptested, todo)
+                need = int(self._pcounts.max())
                 if need <= self._out.shape[1] // 2:
                     break
-                todo = self._counts > self._out.shape[1] // 2
-                self._out = self._grow(self._out, parts, need + need // 4, keep=~todo)
-            tested = int(self._tested.sum())
-        total = int(self._counts[:parts].sum())
+                todo = self._pcounts > self._out.shape[1] // 2
+                self._out = self._grow(self._out, pparts, need + need // 4, keep=~todo)
+            tested = int(self._ptested.sum())
+            counts = self._pcounts
+        total = int(counts.sum())
         pairs = np.empty((total, 2), np.int64)
-        sw.assemble(self._out, self._counts[:parts], pairs)
+        sw.assemble(self._out, counts, pairs)
         t3 = time.perf_counter()
-        self._pair_hint = int(self._counts[:parts].max())
+        self._pair_hint = int(counts.max())
         self._finish(stats, pairs, tested,
                      {"sort": t1 - t0, "candidates": cand_s, "pairing": t3 - t1 - cand_s},
                      disp, t_start)
         self._maybe_swap(disp, trusted)
         return pairs
+
+    def _pair_parts(self, n, threads, nbins):
+        """Rank partitions of the pairing phase: at least one per thread, and
+        small enough that a partition's sharded SuccTree stays in L2 cache."""
+        if self._partitions:
+            return self._partitions
+        target = max(4096, _PAIR_TREE_BITS // max(nbins, 1))
+        parts = max(threads, -(-n // target))
+        return -(-parts // threads) * threads
 
     def _capacity(self, n, parts):
         if self._pair_hint is not None:

@@ -13,6 +13,11 @@ level's first word (``off[nlev]`` is the total size).  Several trees of one
 size share ``off`` and live in the rows of a 2-D ``bits`` array, which is how
 the parallel phases keep one private tree per partition (Algorithms 3 and 4).
 
+The ``*_k`` variants address ``k`` trees interleaved word by word in one
+array: word ``w`` of level ``d`` of tree ``b`` is ``bits[(off[d] + w) * k + b]``.
+Trees that are queried together at the same position (the third-axis shards
+of the pairing phase) then share cache lines.
+
 Algorithm 3 needs the symmetric difference of trees (``xor_leaves``): leaves
 are XOR-ed word by word and the summary levels rebuilt (``rebuild``), O(n/64).
 """
@@ -159,3 +164,56 @@ def to_array(bits, off):
         i += 1
         x = succ(bits, off, x + 1)
     return out
+
+
+# ---------------------------------------------------------------- interleaved
+
+
+@jit
+def ins_k(bits, off, k, b, x):
+    """``ins`` on tree ``b`` of ``k`` interleaved trees."""
+    nlev = len(off) - 1
+    pos = x
+    for lev in range(nlev):
+        w = (off[lev] + (pos >> 6)) * k + b
+        was = bits[w]
+        bits[w] = was | (ONE << np.uint64(pos & 63))
+        if was != 0:
+            return
+        pos >>= 6
+
+
+@jit
+def delete_k(bits, off, k, b, x):
+    """``delete`` on tree ``b`` of ``k`` interleaved trees."""
+    nlev = len(off) - 1
+    pos = x
+    for lev in range(nlev):
+        w = (off[lev] + (pos >> 6)) * k + b
+        now = bits[w] & ~(ONE << np.uint64(pos & 63))
+        bits[w] = now
+        if now != 0:
+            return
+        pos >>= 6
+
+
+@jit
+def succ_k(bits, off, k, b, x):
+    """``succ`` on tree ``b`` of ``k`` interleaved trees."""
+    nlev = len(off) - 1
+    pos = x
+    lev = 0
+    while lev < nlev:
+        w = pos >> 6
+        if off[lev] + w >= off[lev + 1]:
+            return NONE
+        word = bits[(off[lev] + w) * k + b] & (ALL << np.uint64(pos & 63))
+        if word != 0:
+            pos = (w << 6) + np.int64(cttz(word))
+            while lev > 0:
+                lev -= 1
+                pos = (pos << 6) + np.int64(cttz(bits[(off[lev] + pos) * k + b]))
+            return pos
+        pos = w + 1
+        lev += 1
+    return NONE

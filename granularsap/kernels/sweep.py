@@ -33,40 +33,19 @@ from .._numba import jit, pjit
 from . import succtree as st
 from .bits import ALL, cttz
 
+HIGH = np.int64(1) << 62
+QUERY = np.int64(1) << 61
+OWN = np.int64(1) << 60
+RANK_MASK = np.int64(0xFFFFFFFF)
+
 
 @jit
 def _scan_range(tree, off, lo, hi, base, xlo, xhi, zlo, zhi, br, rinv, me,
                 out, cnt, cap):
     """Range query ``S ∩ [lo, hi)`` (Algorithm 1 line 18 / Algorithm 4 line 13)
-    with the overlap test of every candidate (line 20 / 15).
-
-    Writes pairs ``(min, max)`` of object ids into ``out`` while ``cnt < cap``
-    and always counts.  Returns ``(cnt, tested)``.
-    """
-    tested = 0
-    r = st.succ(tree, off, lo)
-    while r != st.NONE and r < hi:
-        w = r >> 6
-        word = tree[w] & (ALL << np.uint64(r & 63))
-        while word != 0:
-            rr = (w << 6) + np.int64(cttz(word))
-            if rr >= hi:
-                return cnt, tested
-            q = rr + base
-            tested += 1
-            if br[q, 0] <= xhi and xlo <= br[q, 1] and br[q, 2] <= zhi and zlo <= br[q, 3]:
-                j = rinv[q]
-                if cnt < cap:
-                    if j < me:
-                        out[2 * cnt] = j
-                        out[2 * cnt + 1] = me
-                    else:
-                        out[2 * cnt] = me
-                        out[2 * cnt + 1] = j
-                cnt += 1
-            word &= word - np.uint64(1)
-        r = st.succ(tree, off, (w + 1) << 6)
-    return cnt, tested
+    with the overlap test of every candidate (line 20 / 15)."""
+    return _scan_range_k(tree, off, 1, 0, lo, hi, base, xlo, xhi, zlo, zhi, br, rinv,
+                         me, out, cnt, cap)
 
 
 @jit
@@ -124,11 +103,13 @@ def pairing_sequential(iy, n, rank, rinv, lcand, ucand, br, tree, off, out):
 
 
 @pjit
-def candidates_parallel(ix, n, rank, rinv, lcand, ucand, trees, off, counts):
+def candidates_parallel(ix, n, info, rinv, trees, off, counts):
     """Algorithm 3: parallel candidate generation on the primary axis.
 
     ``trees``: (m, size) private SuccTrees over ``n`` ranks; ``counts``: (m,)
-    scratch.  Fills ``rank``, ``rinv``, ``lcand`` and ``ucand``.
+    scratch.  Fills ``rinv`` and, per object ``i``, the record ``info[i]`` =
+    (rank ``R[i]``, ``L[i]``, ``U[i]``, -): one cache line serves every
+    look-up of an object in this phase and the next.
     """
     m = trees.shape[0]
     n2 = 2 * n
@@ -158,7 +139,7 @@ def candidates_parallel(ix, n, rank, rinv, lcand, ucand, trees, off, counts):
         for k in range(a, b):
             i = ix[k]
             if i < n:
-                rank[i] = c
+                info[i, 0] = c
                 rinv[c] = i
                 c += 1
     # Lines 12-14: private trees holding the objects with exactly one endpoint
@@ -171,9 +152,9 @@ def candidates_parallel(ix, n, rank, rinv, lcand, ucand, trees, off, counts):
         for k in range(a, b):
             i = ix[k]
             if i < n:
-                st.toggle(tree, off, rank[i])
+                st.toggle(tree, off, info[i, 0])
             else:
-                st.toggle(tree, off, rank[i - n])
+                st.toggle(tree, off, info[i - n, 0])
     # Line 15: exclusive all-prefix symmetric differences, word by word, so
     # that tree p holds the objects active when partition p begins.
     nwords = off[1]
@@ -199,46 +180,256 @@ def candidates_parallel(ix, n, rank, rinv, lcand, ucand, trees, off, counts):
             if i < n:
                 c += 1
                 if st.is_empty(tree, off):
-                    lcand[i] = c
+                    info[i, 1] = c
                 else:
-                    lcand[i] = st.minimum(tree, off)
-                st.ins(tree, off, rank[i])
+                    info[i, 1] = st.minimum(tree, off)
+                st.ins(tree, off, info[i, 0])
             else:
-                ucand[i - n] = c
-                st.delete(tree, off, rank[i - n])
+                info[i - n, 2] = c
+                st.delete(tree, off, info[i - n, 0])
+
+
+@jit
+def third_axis_bins(lower, upper, a2, kmax):
+    """Bins along the unused axis for the sharded active lists of pairing.
+
+    Returns ``(z0, inv_h, reach, k)``: bin of coordinate ``z`` is
+    ``floor((z - z0) * inv_h)`` clamped to ``[0, k)``, with bin width
+    ``h >= reach >= `` the largest extent of any box on that axis.  ``reach``
+    carries a margin of a few ulps so that ``fl(z_lo - reach)`` is never above
+    the exact ``z_lo - extent`` (the query range can only grow, never lose a
+    candidate).
+    """
+    n = lower.shape[0]
+    zmin = np.inf
+    zmax = -np.inf
+    ext = 0.0
+    for i in range(n):
+        lo = lower[i, a2]
+        hi = upper[i, a2]
+        if lo < zmin:
+            zmin = lo
+        if hi > zmax:
+            zmax = hi
+        if hi - lo > ext:
+            ext = hi - lo
+    if n == 0:
+        return 0.0, 0.0, 0.0, 1
+    span = zmax - zmin
+    reach = ext + 1e-12 * (max(abs(zmin), abs(zmax)) + ext)
+    k = 1
+    if reach > 0.0:
+        k = int(min(float(kmax), span / reach))
+    elif span > 0.0:
+        k = kmax
+    if k < 3:
+        return zmin, 0.0, reach, 1
+    return zmin, k / span, reach, k
+
+
+@jit
+def _bin(z, z0, inv_h, k):
+    b = np.int64((z - z0) * inv_h)
+    if b < 0:
+        return 0
+    if b >= k:
+        return k - 1
+    return b
+
+
+@jit
+def _route(e, n, info, delta):
+    """Partitions an event must reach (Algorithm 4, lines 10, 16 and 18).
+
+    Returns ``(own, qa, qb)``: the partition owning the object's rank (it
+    inserts or deletes it) and the range ``[qa, qb]`` of partitions whose
+    ranks meet the candidate range ``[L, U)`` (empty when ``qa > qb``; only
+    low endpoints query).
+    """
+    if e < n:
+        r = info[e, 0]
+        lo = info[e, 1]
+        hi = info[e, 2]
+        if lo < hi:
+            return r // delta, lo // delta, (hi - 1) // delta
+        return r // delta, 1, 0
+    return info[e - n, 0] // delta, 1, 0
 
 
 @pjit
-def gather_parallel(iy, n, lower, upper, a0, a2, rank, rinv, lcand, ucand, br, ev, evlu):
-    """Copy boxes into rank order and lay the secondary sweep out sequentially.
+def gather_parallel(iy, n, lower, upper, a0, a2, info, rinv, br,
+                    z0, inv_h, k, delta, nparts, hist, starts, events):
+    """Route the secondary sweep to the rank partitions of Algorithm 4.
 
-    ``ev[k]``: rank of the object of the k-th secondary endpoint, ``~rank`` for
-    a high endpoint; ``evlu[k]``: its candidate range packed ``L << 32 | U``.
+    Every endpoint of the secondary order goes, in order, to the partition
+    that owns its object's rank (to insert or delete it) and, for a low
+    endpoint, to each partition its candidate range ``[L, U)`` meets (to
+    query).  That is Algorithm 4's line-10 test done once per event instead of
+    once per event and partition; each partition then reads only its own
+    events, in sweep order.
+
+    ``events[t] = (word, L << 32 | U)`` with ``word`` = rank (bits 0-31), the
+    object's third-axis bin (bits 32-47), and flags HIGH, QUERY, OWN.
+    ``starts`` (length ``nparts + 1``) receives the partition offsets.
+    Returns the number of events; when ``events`` is too small nothing is
+    written and the caller calls again with a larger one.  Also copies the
+    boxes into rank order (``br``).
     """
+    n2 = 2 * n
+    nchunks = hist.shape[0]
+    chunk = (n2 + nchunks - 1) // nchunks
+    for i in numba.prange(n):
+        info[i, 3] = _bin(lower[i, a2], z0, inv_h, k)
+    for t in numba.prange(nchunks):
+        a = min(t * chunk, n2)
+        b = min(a + chunk, n2)
+        for p in range(nparts):
+            hist[t, p] = 0
+        for q in range(a, b):
+            own, qa, qb = _route(iy[q], n, info, delta)
+            hist[t, own] += 1
+            for p in range(qa, qb + 1):
+                if p != own:
+                    hist[t, p] += 1
+    total = 0
+    for p in range(nparts):
+        starts[p] = total
+        for t in range(nchunks):
+            c = hist[t, p]
+            hist[t, p] = total
+            total += c
+    starts[nparts] = total
+    if total > events.shape[0]:
+        return total
     for r in numba.prange(n):
         i = rinv[r]
         br[r, 0] = lower[i, a0]
         br[r, 1] = upper[i, a0]
         br[r, 2] = lower[i, a2]
         br[r, 3] = upper[i, a2]
-    for k in numba.prange(2 * n):
-        i = iy[k]
-        if i < n:
-            ev[k] = rank[i]
-            evlu[k] = (np.int64(lcand[i]) << 32) | np.int64(ucand[i])
-        else:
-            ev[k] = ~rank[i - n]
+    for t in numba.prange(nchunks):
+        a = min(t * chunk, n2)
+        b = min(a + chunk, n2)
+        for q in range(a, b):
+            e = iy[q]
+            own, qa, qb = _route(e, n, info, delta)
+            if e < n:
+                i = e
+                flags = np.int64(0)
+                lu = (np.int64(info[i, 1]) << 32) | np.int64(info[i, 2])
+            else:
+                i = e - n
+                flags = HIGH
+                lu = np.int64(0)
+            word = np.int64(info[i, 0]) | (np.int64(info[i, 3]) << 32) | flags
+            if qa <= own and own <= qb:
+                pos = hist[t, own]
+                hist[t, own] = pos + 1
+                events[pos, 0] = word | OWN | QUERY
+                events[pos, 1] = lu
+            else:
+                pos = hist[t, own]
+                hist[t, own] = pos + 1
+                events[pos, 0] = word | OWN
+                events[pos, 1] = lu
+            for p in range(qa, qb + 1):
+                if p != own:
+                    pos = hist[t, p]
+                    hist[t, p] = pos + 1
+                    events[pos, 0] = word | QUERY
+                    events[pos, 1] = lu
+    return total
+
+
+@jit
+def _test_word(word, w, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap):
+    """Overlap-test every rank set in leaf ``word`` number ``w``."""
+    tested = 0
+    while word != 0:
+        q = (w << 6) + np.int64(cttz(word)) + base
+        tested += 1
+        if (br[q, 0] <= xhi) & (xlo <= br[q, 1]) & (br[q, 2] <= zhi) & (zlo <= br[q, 3]):
+            j = rinv[q]
+            if cnt < cap:
+                if j < me:
+                    out[2 * cnt] = j
+                    out[2 * cnt + 1] = me
+                else:
+                    out[2 * cnt] = me
+                    out[2 * cnt + 1] = j
+            cnt += 1
+        word &= word - np.uint64(1)
+    return cnt, tested
+
+
+@jit
+def _scan_range_k(trees, off, k, b, lo, hi, base, xlo, xhi, zlo, zhi, br, rinv, me,
+                  out, cnt, cap):
+    """Range query ``S ∩ [lo, hi)`` on tree ``b`` of ``k`` interleaved trees,
+    with the overlap test of every rank found (Algorithm 4, lines 13-15).
+
+    Rather than iterating ``succ`` (a climb and a descent per step), it walks
+    the level-1 summary bits covering ``[lo, hi)`` and, for each non-empty
+    leaf word they flag, the leaf's set bits: two flat loops, O(range / 4096
+    + words with hits).  Writes pairs ``(min, max)`` of object ids into
+    ``out`` while ``cnt < cap`` and always counts.  Returns ``(cnt, tested)``.
+    """
+    tested = 0
+    if hi <= lo:
+        return cnt, tested
+    w0 = lo >> 6
+    w1 = (hi - 1) >> 6
+    first = ALL << np.uint64(lo & 63)
+    last = ALL >> np.uint64(63 - ((hi - 1) & 63))
+    if len(off) == 2:  # a single leaf word
+        word = trees[b] & first & last
+        return _test_word(word, 0, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap)
+    leaf0 = off[0]
+    sum0 = off[1]
+    s0 = w0 >> 6
+    s1 = w1 >> 6
+    for sw in range(s0, s1 + 1):
+        sword = trees[(sum0 + sw) * k + b]
+        if sw == s0:
+            sword &= ALL << np.uint64(w0 & 63)
+        if sw == s1:
+            sword &= ALL >> np.uint64(63 - (w1 & 63))
+        while sword != 0:
+            w = (sw << 6) + np.int64(cttz(sword))
+            word = trees[(leaf0 + w) * k + b]
+            if w == w0:
+                word &= first
+            if w == w1:
+                word &= last
+            cnt, t = _test_word(word, w, base, xlo, xhi, zlo, zhi, br, rinv, me, out,
+                                cnt, cap)
+            tested += t
+            sword &= sword - np.uint64(1)
+    return cnt, tested
 
 
 @pjit
-def pairing_parallel(ev, evlu, n, br, rinv, trees, off, out, counts, tested, todo):
+def pairing_parallel(events, starts, n, br, rinv, trees, off, k, z0, inv_h, reach,
+                     out, counts, tested, todo):
     """Algorithm 4: rank-partitioned parallel pairing, without duplicates.
 
-    Partition ``p`` owns ranks ``[beta, eps)``; it sweeps every secondary
-    endpoint but keeps only its own ranks in its tree, so each pair is found
-    by exactly one partition and no reduction is needed.  Partition ``p``
-    writes at most ``out.shape[1] // 2`` pairs into row ``p`` of ``out`` and
-    counts all of them in ``counts[p]``; only partitions with ``todo[p]`` run.
+    Partition ``p`` owns ranks ``[beta, eps)`` and keeps only those in its
+    active list, so each pair is found by exactly one partition and no
+    reduction is needed.  Its events (``gather_parallel``) arrive in sweep
+    order: OWN events insert (low, line 16) or delete (high, line 18) its
+    ranks; QUERY events run the clipped range query (lines 11-15).
+
+    Extension: the active list of a partition is sharded into ``k`` SuccTrees
+    (interleaved in ``trees[p]``) by the bin of the box's low end on the
+    unused axis (``third_axis_bins``).  A query visits only the bins that can
+    hold a box overlapping it on that axis, at most three, instead of the
+    whole list; the exact overlap test still decides every pair.  With
+    ``k == 1`` this is the paper's Algorithm 4.  Partitions are sized so that
+    their trees stay in cache.
+
+    Partition ``p`` writes at most ``out.shape[1] // 2`` pairs into row ``p``
+    of ``out`` and counts all of them in ``counts[p]``; only partitions with
+    ``todo[p]`` run.
     """
     m = trees.shape[0]
     cap = out.shape[1] // 2
@@ -246,32 +437,38 @@ def pairing_parallel(ev, evlu, n, br, rinv, trees, off, out, counts, tested, tod
     for p in numba.prange(m):  # line 2
         if not todo[p]:
             continue
-        tree = trees[p]  # line 3
-        st.clear(tree, off)
+        tree = trees[p]
+        for w in range(tree.shape[0]):  # line 3
+            tree[w] = np.uint64(0)
         beta = min(p * delta, n)  # line 4
         eps = min(beta + delta, n)  # line 5
         buf = out[p]
         cnt = 0
         tst = 0
-        for k in range(2 * n):  # line 6
-            r = ev[k]
-            if r >= 0:  # line 7
-                lu = evlu[k]
-                lo = lu >> 32  # line 8
-                hi = lu & 0xFFFFFFFF  # line 9
-                if lo < eps and beta < hi:  # line 10
-                    lo = max(lo, beta) - beta  # line 11
-                    hi = min(hi, eps) - beta  # line 12
-                    cnt, t = _scan_range(tree, off, lo, hi, beta, br[r, 0], br[r, 1],
-                                         br[r, 2], br[r, 3], br, rinv, rinv[r],
-                                         buf, cnt, cap)  # lines 13-15
-                    tst += t
-                if beta <= r and r < eps:  # line 16
-                    st.ins(tree, off, r - beta)
-            else:
-                r = ~r
-                if beta <= r and r < eps:  # line 18
-                    st.delete(tree, off, r - beta)
+        for t in range(starts[p], starts[p + 1]):  # line 6
+            e = events[t, 0]
+            r = e & RANK_MASK
+            b = (e >> 32) & 0xFFFF
+            if e & HIGH:  # line 17
+                st.delete_k(tree, off, k, b, r - beta)  # line 18
+                continue
+            if e & QUERY:  # line 10
+                lu = events[t, 1]
+                lo = max(lu >> 32, beta) - beta  # lines 8, 11
+                hi = min(lu & RANK_MASK, eps) - beta  # lines 9, 12
+                xlo = br[r, 0]
+                xhi = br[r, 1]
+                zlo = br[r, 2]
+                zhi = br[r, 3]
+                b0 = _bin(zlo - reach, z0, inv_h, k)
+                b1 = _bin(zhi, z0, inv_h, k)
+                me = rinv[r]
+                for bb in range(b0, b1 + 1):  # lines 13-15, per shard
+                    cnt, tt = _scan_range_k(tree, off, k, bb, lo, hi, beta, xlo, xhi,
+                                            zlo, zhi, br, rinv, me, buf, cnt, cap)
+                    tst += tt
+            if e & OWN:
+                st.ins_k(tree, off, k, b, r - beta)  # line 16
         counts[p] = cnt
         tested[p] = tst
 
