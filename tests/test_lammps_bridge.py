@@ -93,6 +93,19 @@ class TestNeighborPairsOracle:
         pairs = lammps_bridge.neighbor_pairs(pos, np.nextafter(2.5, 0), None)
         assert len(pairs) == 0
 
+    def test_lammps_list_itself_is_inclusive(self):
+        # power-of-two box and integer positions: LAMMPS's coordinates are exactly ours,
+        # so raw=True shows LAMMPS's own test, rsq <= cutneighsq (not the pair styles'
+        # strict rsq < cutsq): pairs at exactly the cutoff are in LAMMPS's list
+        pos = np.array([[1.0, 1.0, 1.0], [2.0, 1.0, 1.0], [1.0, 3.0, 1.0], [7.0, 1.0, 1.0]])
+        box = [8.0, 8.0, 8.0, 90.0, 90.0, 90.0]
+        for raw in (True, False):
+            np.testing.assert_array_equal(
+                lammps_bridge.neighbor_pairs(pos, 1.0, box, raw=raw), [[0, 1]])
+            # (0, 2) at d = 2 directly, (0, 3) at d = 2 through the periodic image
+            np.testing.assert_array_equal(
+                lammps_bridge.neighbor_pairs(pos, 2.0, box, raw=raw), [[0, 1], [0, 2], [0, 3]])
+
     def test_permutation_and_translation(self):
         pos, box, pbc, _, _ = _case("triclinic", seed=3)
         ref = lammps_bridge.neighbor_pairs(pos, 2.0, box)
