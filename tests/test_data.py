@@ -83,6 +83,16 @@ class TestContents:
         for mol in tmp_path.glob("*.mol"):
             assert mol.read_text() == (DATA / mol.name).read_text()
 
+    def test_generator_reproduces_clumps(self, tmp_path, capsys):
+        # the cheapest system (3 s): LAMMPS really runs the committed script
+        assert generate.main(["clumps", "--outdir", str(tmp_path)]) == 0
+        assert "clumps: wrote" in capsys.readouterr().out
+        new = list(iter_frames(tmp_path / "clumps.dump"))
+        old = _frames("clumps.dump")
+        assert len(new) == len(old)
+        np.testing.assert_array_equal(new[0].molecule, old[0].molecule)
+        np.testing.assert_allclose(new[0].positions, old[0].positions, atol=1e-4)
+
     def test_generator_errors(self, tmp_path):
         with pytest.raises(ValueError, match="unknown system 'sand'; choose one of"):
             generate.write_inputs("sand", tmp_path)
