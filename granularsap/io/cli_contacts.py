@@ -1,0 +1,159 @@
+"""Contacts of every frame of a trajectory, written to one HDF5 file.
+
+Reads a LAMMPS text dump or anything ASE/MDAnalysis reads, finds every
+frame's contacts with granularsap, and writes them (with contact births and
+deaths between consecutive frames) to OUT.h5.  An interrupted run leaves
+OUT.h5.partial; running the same command again resumes it.
+
+Exit codes: 0 done, 2 bad usage or input, 130 interrupted (resumable).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def _frames(text):
+    parts = text.split(":")
+    if len(parts) > 3:
+        raise argparse.ArgumentTypeError(f"expected START:STOP:STEP, got {text!r}") from None
+    try:
+        vals = [int(p) if p.strip() else None for p in parts] + [None] * (3 - len(parts))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected integers in START:STOP:STEP, got {text!r}") from None
+    if len(parts) == 1 and vals[0] is not None:  # a single frame number
+        vals = [vals[0], vals[0] + 1, None]
+    start, stop, step = vals
+    if (start is not None and start < 0) or (stop is not None and stop < 0):
+        raise argparse.ArgumentTypeError(f"START and STOP must be >= 0, got {text!r}") from None
+    if step is not None and step <= 0:
+        raise argparse.ArgumentTypeError(f"STEP must be positive, got {text!r}") from None
+    return slice(start, stop, step)
+
+
+def _nonneg(text):
+    try:
+        val = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not val >= 0 or val == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}") from None
+    return val
+
+
+def _positive_int(text):
+    try:
+        val = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if val <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    return val
+
+
+def add_arguments(parser):
+    parser.add_argument("trajectory", metavar="TRAJ",
+                        help="LAMMPS text dump, or any file ASE or MDAnalysis reads")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT.h5",
+                        help="HDF5 file to write")
+    what = parser.add_mutually_exclusive_group()
+    what.add_argument("--cutoff", type=_nonneg, metavar="C",
+                      help="neighbour pairs with distance <= C")
+    what.add_argument("--radius", type=_nonneg, metavar="R",
+                      help="sphere contacts, every particle of radius R")
+    what.add_argument("--radius-column", metavar="NAME",
+                      help="sphere contacts with radii from this per-particle column "
+                           "('diameter' is halved); default: the file's radius or diameter")
+    parser.add_argument("--skin", type=_nonneg, default=0.0, metavar="S",
+                        help="sphere contacts: count pairs with d <= r_i + r_j + S (default 0)")
+    parser.add_argument("--frames", type=_frames, default=None, metavar="START:STOP:STEP",
+                        help="frames to process (default all)")
+    parser.add_argument("--clumps", action="store_true",
+                        help="treat the molecule column as rigid-clump ids: no intra-clump "
+                             "pairs, clump pairs stored too")
+    parser.add_argument("--distances", action="store_true", help="store pair distances")
+    parser.add_argument("--format", default=None,
+                        help="'lammps-dump', 'ase[:FMT]' or 'mdanalysis[:FMT]' (default: guess)")
+    parser.add_argument("--topology", default=None, metavar="FILE",
+                        help="topology file for MDAnalysis (e.g. for DCD/XTC)")
+    parser.add_argument("--threads", type=_positive_int, default=None, metavar="N",
+                        help="numba threads per frame (default: all; 1 per worker with --workers)")
+    dist = parser.add_mutually_exclusive_group()
+    dist.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+                      help="start a local Dask cluster with N worker processes")
+    dist.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                      help="use an existing dask.distributed scheduler, e.g. tcp://host:8786")
+    parser.add_argument("--no-resume", action="store_true",
+                        help="start over even if OUT.h5.partial from an interrupted run exists")
+    parser.add_argument("-f", "--force", action="store_true",
+                        help="overwrite OUT.h5 if it exists")
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bar and no summary")
+
+
+def run(args) -> int:
+    from ..cli import CLIError
+    from .pipeline import ContactParams, compute_contacts
+
+    threads = args.threads
+    if threads is None and args.workers is not None:
+        import os
+
+        threads = max(1, (os.cpu_count() or 1) // args.workers)
+    try:
+        params = ContactParams(cutoff=args.cutoff, radius=args.radius,
+                               radius_column=args.radius_column, skin=args.skin,
+                               clumps=args.clumps, distances=args.distances, n_threads=threads)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from None
+    import os
+
+    if not os.path.exists(args.trajectory):
+        raise CLIError(f"trajectory {args.trajectory} does not exist")
+    if os.path.exists(args.output) and not args.force:
+        raise CLIError(f"{args.output} already exists; use --force to overwrite it")
+
+    def on_resume(done, reason):
+        if args.quiet:
+            return
+        if reason:
+            print(f"starting over: {reason}", file=sys.stderr)
+        if done:
+            print(f"resuming {args.output}.partial after {done} complete frames",
+                  file=sys.stderr)
+
+    bar = None
+    if not args.quiet:
+        from tqdm import tqdm
+
+        bar = tqdm(total=None, unit="frame", desc="contacts", file=sys.stderr,
+                   dynamic_ncols=True, mininterval=0.5)
+    try:
+        summary = compute_contacts(args.trajectory, args.output, params, format=args.format,
+                                   topology=args.topology, frames=args.frames,
+                                   resume=not args.no_resume, overwrite=args.force,
+                                   workers=args.workers, scheduler=args.scheduler,
+                                   progress=bar, on_resume=on_resume)
+    except KeyError as exc:
+        raise CLIError(exc.args[0] if exc.args else str(exc)) from None
+    except KeyboardInterrupt:
+        if bar is not None:
+            bar.close()
+        print(f"granularsap contacts: interrupted; complete frames are kept in "
+              f"{args.output}.partial; run the same command again to resume", file=sys.stderr)
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+    if not args.quiet:
+        t = summary["timing"]
+        wall = t.get("wall", 0.0) or 1e-12
+        n = t.get("frames_this_run", 0)
+        busy = t["read"] + t["compute"] + t["write"] or 1e-12
+        print(f"wrote {args.output}: {summary['frames']} frames "
+              f"({n} this run, {n / wall:.2f} frames/s); time share: "
+              f"read {100 * t['read'] / busy:.0f}%, compute {100 * t['compute'] / busy:.0f}%, "
+              f"write {100 * t['write'] / busy:.0f}%")
+    return 0
