@@ -136,16 +136,19 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("output", nargs="?", default="dem_pour.png", help="PNG to write")
     parser.add_argument("--n", type=int, default=2000, help="number of spheres")
-    parser.add_argument("--steps", type=int, default=1600, help="time steps")
+    parser.add_argument("--steps", type=int, default=2000, help="time steps")
     parser.add_argument("--width", type=float, default=30.0, help="box width")
     parser.add_argument("--seed", type=int, default=0)
+    # a few thousand spheres: one thread is fastest (thread start-up per step costs more
+    # than it saves); use more threads for systems of 1e5 spheres and up
+    parser.add_argument("--threads", type=int, default=1, help="numba threads")
     args = parser.parse_args(argv)
 
     rng = np.random.default_rng(args.seed)
     pos, vel, radii = initial_column(args.n, args.width, rng)
     mass = DENSITY * 4.0 / 3.0 * np.pi * radii ** 3
     dt = np.pi * np.sqrt(0.5 * mass.min() / K_NORMAL) / 12.0  # 1/12 of a contact time
-    engine = granularsap.SweepAndPrune()
+    engine = granularsap.SweepAndPrune(n_threads=args.threads)
     print(f"{args.n} spheres, radii {R_MIN}-{R_MAX}, dt = {dt:.2e}, {args.steps} steps")
 
     t0 = time.perf_counter()

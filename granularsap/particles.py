@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import periodic
+from ._numba import num_threads
 from ._validate import as_coords, as_scalar, as_vector, check_n_threads
 from .api import box_overlaps
 from .kernels import narrow
@@ -132,15 +133,14 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
     upper = np.ascontiguousarray(centres + half_all)
     cand = box_overlaps(lower, upper, n_threads=n_threads)
     cand = np.ascontiguousarray(cand, dtype=np.int64)
-    from ._numba import num_threads
 
-    with num_threads(n_threads):
+    with num_threads(n_threads) as threads:
         keep, dist = narrow.narrow_candidates(
             cand, n, np.ascontiguousarray(owner, dtype=np.int64),
             np.ascontiguousarray(gshift, dtype=np.int64), np.ascontiguousarray(pos_d),
             np.ascontiguousarray(nshift), np.ascontiguousarray(cell, dtype=np.float64),
             np.ascontiguousarray(rad), skin, strict=strict,
-            self_images=minimum_image is False)
+            self_images=minimum_image is False, n_threads=threads)
     sel = cand[keep]
     dist = dist[keep]
     p = np.minimum(sel[:, 0], sel[:, 1])
@@ -423,21 +423,10 @@ def clump_contacts(positions, radii, clump_ids, *, skin=0.0, box=None, n_threads
     ok = p < cb  # canonical side of each image pair; drops clump-with-own-image
     ca, cb, ct = (np.ascontiguousarray(p[ok]), np.ascontiguousarray(cb[ok]),
                   np.ascontiguousarray(ct[ok]))
-    from ._numba import num_threads
-
     u = np.ascontiguousarray(u, dtype=np.float64)
-    with num_threads(n_threads):
-        counts = np.zeros(len(ca), dtype=np.int64)
-        if len(ca):
-            narrow._clump_count(ca, cb, ct, start, members, u, cell_k, radii, skin, counts)
-        offsets = np.zeros(len(ca) + 1, dtype=np.int64)
-        np.cumsum(counts, out=offsets[1:])
-        total = int(offsets[-1])
-        sp = np.empty((total, 2), dtype=np.int64)
-        sd = np.empty(total, dtype=np.float64)
-        if total:
-            narrow._clump_fill(ca, cb, ct, start, members, u, cell_k, radii, skin,
-                               offsets, sp, sd)
+    with num_threads(n_threads) as threads:
+        counts, sp, _ = narrow.clump_pairs(ca, cb, ct, start, members, u, cell_k, radii, skin,
+                                           n_threads=threads)
     hit = counts > 0
     cp = np.stack([labels[ca[hit]], labels[cb[hit]]], axis=1).astype(np.int64)
     if len(cp):

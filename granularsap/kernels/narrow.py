@@ -29,13 +29,15 @@ import numpy as np
 
 from .._numba import jit, pjit
 
+#: candidates below which the serial kernels run (thread start-up dominates)
+PARALLEL_MIN = 16384
 
-@pjit
-def _narrow_candidates(cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
-                       strict, self_images, keep, dist):
-    """Flag candidates that are within range; ``keep[t]``/``dist[t]`` per candidate."""
-    k = cand.shape[0]
-    for t in numba.prange(k):
+
+@jit
+def _narrow_range(t_lo, t_hi, cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
+                  strict, self_images, keep, dist):
+    """Flag candidates ``t_lo <= t < t_hi`` that are within range (``keep``, ``dist``)."""
+    for t in range(t_lo, t_hi):
         keep[t] = False
         dist[t] = 0.0
         p = cand[t, 0]
@@ -92,6 +94,16 @@ def _narrow_candidates(cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
             dist[t] = d
 
 
+@pjit
+def _narrow_parallel(n_chunks, cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
+                     strict, self_images, keep, dist):
+    """``_narrow_range`` over ``n_chunks`` contiguous chunks in parallel."""
+    k = cand.shape[0]
+    for c in numba.prange(n_chunks):
+        _narrow_range(c * k // n_chunks, (c + 1) * k // n_chunks, cand, n_own, owner, gshift,
+                      pos, nshift, cell, rad, skin, strict, self_images, keep, dist)
+
+
 @jit
 def _member_pair(u, i, j, t0, t1, t2, cell):
     dx = u[j, 0] - u[i, 0]
@@ -112,11 +124,10 @@ def _member_pair(u, i, j, t0, t1, t2, cell):
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@pjit
-def _clump_count(ca, cb, ct, start, members, u, cell, radii, skin, counts):
+@jit
+def _clump_count_range(t_lo, t_hi, ca, cb, ct, start, members, u, cell, radii, skin, counts):
     """Number of sphere contacts for each candidate clump pair (image ``ct``)."""
-    k = ca.shape[0]
-    for t in numba.prange(k):
+    for t in range(t_lo, t_hi):
         a = ca[t]
         b = cb[t]
         c = 0
@@ -130,12 +141,11 @@ def _clump_count(ca, cb, ct, start, members, u, cell, radii, skin, counts):
         counts[t] = c
 
 
-@pjit
-def _clump_fill(ca, cb, ct, start, members, u, cell, radii, skin, offsets,
-                out_pairs, out_dist):
-    """Write the sphere contacts counted by ``_clump_count`` at ``offsets``."""
-    k = ca.shape[0]
-    for t in numba.prange(k):
+@jit
+def _clump_fill_range(t_lo, t_hi, ca, cb, ct, start, members, u, cell, radii, skin, offsets,
+                      out_pairs, out_dist):
+    """Write the sphere contacts counted by ``_clump_count_range`` at ``offsets``."""
+    for t in range(t_lo, t_hi):
         a = ca[t]
         b = cb[t]
         o = offsets[t]
@@ -155,13 +165,64 @@ def _clump_fill(ca, cb, ct, start, members, u, cell, radii, skin, offsets,
                     o += 1
 
 
+@pjit
+def _clump_count_parallel(n_chunks, ca, cb, ct, start, members, u, cell, radii, skin, counts):
+    k = ca.shape[0]
+    for c in numba.prange(n_chunks):
+        _clump_count_range(c * k // n_chunks, (c + 1) * k // n_chunks, ca, cb, ct, start,
+                           members, u, cell, radii, skin, counts)
+
+
+@pjit
+def _clump_fill_parallel(n_chunks, ca, cb, ct, start, members, u, cell, radii, skin, offsets,
+                         out_pairs, out_dist):
+    k = ca.shape[0]
+    for c in numba.prange(n_chunks):
+        _clump_fill_range(c * k // n_chunks, (c + 1) * k // n_chunks, ca, cb, ct, start,
+                          members, u, cell, radii, skin, offsets, out_pairs, out_dist)
+
+
+def _chunks(k, n_threads):
+    """Number of parallel chunks, or 0 for the serial kernel."""
+    if k < PARALLEL_MIN or n_threads <= 1:
+        return 0
+    return int(min(8 * n_threads, max(1, k // 4096)))
+
+
 def narrow_candidates(cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
-                      strict=False, self_images=False):
-    """Run ``_narrow_candidates``; returns ``(keep, dist)`` arrays of length k."""
+                      strict=False, self_images=False, n_threads=1):
+    """Flag in-range candidates; returns ``(keep, dist)`` arrays of length k."""
     k = len(cand)
     keep = np.empty(k, dtype=np.bool_)
     dist = np.empty(k, dtype=np.float64)
-    if k:
-        _narrow_candidates(cand, np.int64(n_own), owner, gshift, pos, nshift, cell, rad,
-                           float(skin), bool(strict), bool(self_images), keep, dist)
+    args = (cand, np.int64(n_own), owner, gshift, pos, nshift, cell, rad, float(skin),
+            bool(strict), bool(self_images), keep, dist)
+    chunks = _chunks(k, n_threads)
+    if chunks:
+        _narrow_parallel(chunks, *args)
+    elif k:
+        _narrow_range(0, k, *args)
     return keep, dist
+
+
+def clump_pairs(ca, cb, ct, start, members, u, cell, radii, skin, n_threads=1):
+    """Sphere contacts of candidate clump pairs; returns ``(counts, pairs, distances)``."""
+    k = len(ca)
+    counts = np.zeros(k, dtype=np.int64)
+    args = (ca, cb, ct, start, members, u, cell, radii, float(skin))
+    chunks = _chunks(k, n_threads)
+    if chunks:
+        _clump_count_parallel(chunks, *args, counts)
+    elif k:
+        _clump_count_range(0, k, *args, counts)
+    offsets = np.zeros(k + 1, dtype=np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    total = int(offsets[-1])
+    pairs = np.empty((total, 2), dtype=np.int64)
+    dist = np.empty(total, dtype=np.float64)
+    if total:
+        if chunks:
+            _clump_fill_parallel(chunks, *args, offsets, pairs, dist)
+        else:
+            _clump_fill_range(0, k, *args, offsets, pairs, dist)
+    return counts, pairs, dist
