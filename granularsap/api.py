@@ -174,6 +174,31 @@ class SweepAndPrune:
             return b, False
         return b, True
 
+    @property
+    def nbytes(self):
+        """Bytes of working memory the engine keeps between calls, excluding
+        the input boxes, the returned pairs and the per-partition pair staging
+        buffers (``staging_nbytes``, about the size of the last output)."""
+        seen = {id(self._out)} if hasattr(self, "_out") else set()
+        total = 0
+        for value in vars(self).values():
+            if isinstance(value, np.ndarray):
+                base = value if value.base is None else value.base
+                while isinstance(base, np.ndarray) and base.base is not None:
+                    base = base.base
+                if id(base) not in seen:
+                    seen.add(id(base))
+                    total += base.nbytes
+            elif isinstance(value, dict):
+                total += sum(v.nbytes for v in value.values() if isinstance(v, np.ndarray))
+        return total
+
+    @property
+    def staging_nbytes(self):
+        """Bytes of the per-partition buffers pairs are written to before
+        being concatenated into the returned array."""
+        return self._out.nbytes if hasattr(self, "_out") else 0
+
     # ------------------------------------------------------------------ update
     def update(self, lower, upper):
         """Overlapping pairs of the boxes ``[lower, upper]`` of this frame.
