@@ -124,6 +124,12 @@ def run(args) -> int:
             print(f"resuming {args.output}.partial after {done} complete frames",
                   file=sys.stderr)
 
+    import signal
+
+    def on_term(signum, frame):  # kill: stop like Ctrl-C, so queued frames are committed
+        raise KeyboardInterrupt
+
+    old_term = signal.signal(signal.SIGTERM, on_term)
     bar = None
     if not args.quiet:
         from tqdm import tqdm
@@ -145,6 +151,7 @@ def run(args) -> int:
               f"{args.output}.partial; run the same command again to resume", file=sys.stderr)
         raise
     finally:
+        signal.signal(signal.SIGTERM, old_term)
         if bar is not None:
             bar.close()
     if not args.quiet:

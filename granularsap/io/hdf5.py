@@ -34,8 +34,9 @@ HDF5, readable with h5py or any HDF5 tool, no granularsap needed)::
 Frame 0 of a file has no births or deaths (there is no previous frame).
 
 Interruption safety: the file is written as ``OUT.h5.partial`` with
-``complete = 0``; after each frame the datasets are extended first, then
-``n_frames`` is raised and the file flushed.  Only when every frame is in is
+``complete = 0``; frames are committed in batches (about once a second):
+the datasets are extended and flushed first, then ``n_frames`` is raised and
+the file flushed again.  Only when every frame is in is
 ``complete`` set to 1, the file closed and atomically renamed to ``OUT.h5``.
 So ``OUT.h5`` either does not exist or is complete; a ``.partial`` file is
 resumed from its last complete frame (rows past ``n_frames`` are discarded).
@@ -46,6 +47,7 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -137,6 +139,10 @@ class ContactsWriter:
     resume : bool
         If a ``.partial`` file with the same parameters exists, continue it.
         Otherwise it is replaced.
+    commit_seconds : float
+        Queued frames are written and made durable (``n_frames`` raised,
+        file flushed) at least this often; 0 commits every frame.  An
+        interruption loses at most the frames queued since the last commit.
 
     Attributes
     ----------
@@ -145,7 +151,8 @@ class ContactsWriter:
     resumed : bool
     """
 
-    def __init__(self, path, parameters, *, distances=False, clumps=False, resume=True):
+    def __init__(self, path, parameters, *, distances=False, clumps=False, resume=True,
+                 commit_seconds=1.0):
         self.h5py = _h5py()
         self.path = os.fspath(path)
         self.tmp = partial_path(self.path)
@@ -156,6 +163,10 @@ class ContactsWriter:
         self.discarded_reason = None
         self._prev = None
         self.file = None
+        self.commit_seconds = float(commit_seconds)
+        self._buffer = []
+        self._buffered_pairs = 0
+        self._last_commit = time.monotonic()
         if resume and os.path.exists(self.tmp):
             self._try_resume()
         if self.file is None:
@@ -234,7 +245,7 @@ class ContactsWriter:
         self.n_frames = n
         self.resumed = True
         if n:
-            lo, hi = g["contact_offset"][n - 1:n + 1]
+            lo, hi = g["contact_offset"][n - 1:n + 1]  # previous frame, for births/deaths
             self._prev = f["contacts/pairs"][lo:hi]
 
     def _offset_table(self):
@@ -259,43 +270,80 @@ class ContactsWriter:
         return n + len(arr)
 
     def append(self, res: FrameResult):
-        """Write one frame, then mark it complete (``n_frames`` += 1) and flush."""
-        f = self.file
-        g = f["frames"]
+        """Queue one frame; frames are committed in batches (see ``commit_seconds``)."""
         pairs = np.ascontiguousarray(res.pairs, dtype=np.int64).reshape(-1, 2)
         if self._prev is None:
             born = died = np.empty((0, 2), np.int64)
         else:
             born = pair_difference(pairs, self._prev)
             died = pair_difference(self._prev, pairs)
-        n = self.n_frames
-        row = {"index": res.index, "step": -1 if res.step is None else res.step,
-               "time": np.nan if res.time is None else res.time,
-               "n_particles": res.n_particles, "cell": res.cell, "pbc": res.pbc,
-               "n_contacts": len(pairs), "n_born": len(born), "n_died": len(died)}
-        for name, value in row.items():
-            g[name].resize(n + 1, axis=0)
-            g[name][n] = value
-        blocks = {"contacts": pairs, "born": born, "died": died}
-        for off, grp, name in self._offset_table():
-            key = grp if grp != "events" else name
-            data = res.clump_pairs if grp == "clumps" else blocks[key]
-            data = np.asarray(data, dtype=np.int64).reshape(-1, 2)
-            end = self._extend(f[grp][name], data)
-            g[off].resize(n + 2, axis=0)
-            g[off][n + 1] = end
-        if self.distances:
-            self._extend(f["contacts/distances"], np.asarray(res.distances, dtype=np.float64))
-        f.attrs["n_frames"] = np.int64(n + 1)  # the frame is trusted from here on
-        f.flush()
-        self.n_frames = n + 1
         self._prev = pairs
+        self._buffer.append((res, pairs, born, died))
+        self._buffered_pairs += len(pairs)
+        if (time.monotonic() - self._last_commit >= self.commit_seconds
+                or self._buffered_pairs >= 4_000_000):
+            self.commit()
+
+    def commit(self):
+        """Write the queued frames, then raise ``n_frames`` and flush.
+
+        Data first, the ``n_frames`` attribute last: rows past ``n_frames``
+        (from a commit cut short) are ignored and dropped on resume.
+        """
+        self._last_commit = time.monotonic()
+        if not self._buffer:
+            return
+        f = self.file
+        g = f["frames"]
+        n = self.n_frames
+        batch = self._buffer
+        m = len(batch)
+        cols = {
+            "index": [r.index for r, *_ in batch],
+            "step": [-1 if r.step is None else r.step for r, *_ in batch],
+            "time": [np.nan if r.time is None else r.time for r, *_ in batch],
+            "n_particles": [r.n_particles for r, *_ in batch],
+            "cell": [r.cell for r, *_ in batch],
+            "pbc": [r.pbc for r, *_ in batch],
+            "n_contacts": [len(p) for _, p, _, _ in batch],
+            "n_born": [len(b) for _, _, b, _ in batch],
+            "n_died": [len(d) for _, _, _, d in batch],
+        }
+        for name, values in cols.items():
+            ds = g[name]
+            ds.resize(n + m, axis=0)
+            ds[n:n + m] = np.asarray(values, dtype=ds.dtype)
+        blocks = {"contacts": 1, "born": 2, "died": 3}
+        for off, grp, name in self._offset_table():
+            if grp == "clumps":
+                parts = [np.asarray(r.clump_pairs, dtype=np.int64).reshape(-1, 2)
+                         for r, *_ in batch]
+            else:
+                k = blocks[grp if grp != "events" else name]
+                parts = [item[k] for item in batch]
+            ds = f[grp][name]
+            base = ds.shape[0]
+            ends = base + np.cumsum([len(p) for p in parts])
+            self._extend(ds, np.concatenate(parts) if parts else np.empty((0, 2), np.int64))
+            g[off].resize(n + m + 1, axis=0)
+            g[off][n + 1:n + m + 1] = ends
+        if self.distances:
+            self._extend(f["contacts/distances"],
+                         np.concatenate([np.asarray(r.distances, dtype=np.float64).ravel()
+                                         for r, *_ in batch]))
+        f.flush()
+        f.attrs["n_frames"] = np.int64(n + m)  # these frames are trusted from here on
+        f.flush()
+        self.n_frames = n + m
+        self._buffer = []
+        self._buffered_pairs = 0
 
     def set_timing(self, timing: dict):
         self.file.attrs["timing"] = json.dumps(timing, sort_keys=True)
 
     def finish(self, timing=None):
         """Mark the file complete, close it and rename it to its final name."""
+        self.commit()
         if timing is not None:
             self.set_timing(timing)
         self.file.attrs["finished"] = _now()
@@ -309,6 +357,7 @@ class ContactsWriter:
         """Close without marking complete (the ``.partial`` file stays resumable)."""
         if self.file is not None:
             try:
+                self.commit()
                 self.file.flush()
             finally:
                 self.file.close()

@@ -294,7 +294,7 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
     timing = {"read": 0.0, "compute": 0.0, "write": 0.0}
     runner = None
     t_start = time.perf_counter()
-    n_contacts = 0
+    n_contacts = n_new = 0
     try:
         if progress is not None:
             try:
@@ -330,14 +330,17 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
             writer.append(res)
             timing["write"] += time.perf_counter() - t0
             n_contacts += len(res.pairs)
+            n_new += 1
             if progress is not None:
                 progress.update(1)
         timing["wall"] = time.perf_counter() - t_start
-        timing["frames_this_run"] = writer.n_frames - done
+        timing["frames_this_run"] = n_new
+        t0 = time.perf_counter()
         writer.finish(timing)
+        timing["write"] += time.perf_counter() - t0
     finally:
         if runner is not None:
             runner.close()
         writer.close()
-    return {"frames": writer.n_frames, "resumed_from": done, "contacts_this_run": n_contacts,
+    return {"frames": done + n_new, "resumed_from": done, "contacts_this_run": n_contacts,
             "timing": timing, "output": output, "partial": partial_path(output)}
