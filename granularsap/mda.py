@@ -110,7 +110,7 @@ def self_capped_distance(reference, max_cutoff, min_cutoff=None, box=None, metho
     >>> pairs, d = self_capped_distance([[0, 0, 0], [1, 0, 0], [9, 0, 0]], 2.0,
     ...                                 box=[10, 10, 10, 90, 90, 90])
     >>> sorted(pairs.tolist()), sorted(d.tolist())
-    ([[0, 1], [0, 2]], [1.0, 1.0])
+    ([[0, 1], [0, 2], [1, 2]], [1.0, 1.0, 2.0])
     """
     from ._validate import check_n_threads
 

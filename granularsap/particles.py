@@ -279,7 +279,7 @@ def neighbor_pairs(positions, cutoff, *, box=None, n_threads=None, return_distan
     --------
     >>> import numpy as np
     >>> from granularsap import neighbor_pairs
-    >>> pairs, d = neighbor_pairs([[0.0, 0, 0], [1, 0, 0], [3, 0, 0]], 2.0)
+    >>> pairs, d = neighbor_pairs([[0.0, 0, 0], [1, 0, 0], [3.5, 0, 0]], 2.0)
     >>> pairs.tolist(), d.tolist()
     ([[0, 1]], [1.0])
     """
