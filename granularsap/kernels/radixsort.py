@@ -99,34 +99,15 @@ def _insertion_sort(keys, idx, lo, hi):
 
 
 @jit
-def radix_segment(ka, ia, kb, ib, lo, hi, count):
-    """Stable LSD radix sort of entries ``[lo, hi)`` of ``(ka, ia)`` by key.
+def _lsd_passes(ka, ia, kb, ib, lo, hi, count, kmin, shift, stop):
+    """Stable LSD passes over bits ``[shift, stop)`` of ``key - kmin``.
 
-    ``(kb, ib)`` is scratch of the same size.  Returns True when the sorted
-    result is in ``(ka, ia)`` and False when it is in ``(kb, ib)``.
+    Returns True when the result is in ``(ka, ia)``.  Passes in which every
+    key has the same digit are skipped.
     """
     m = hi - lo
-    if m <= 1:
-        return True
-    if m <= 32:
-        _insertion_sort(ka, ia, lo, hi)
-        return True
-    kmin = ka[lo]
-    kmax = ka[lo]
-    for a in range(lo + 1, hi):
-        k = ka[a]
-        if k < kmin:
-            kmin = k
-        if k > kmax:
-            kmax = k
-    diff = kmax - kmin
-    nbits = 0
-    while diff != 0:
-        diff >>= np.uint64(1)
-        nbits += 1
     in_a = True
-    shift = 0
-    while shift < nbits:
+    while shift < stop:
         sh = np.uint64(shift)
         for d in range(RADIX):
             count[d] = 0
@@ -158,6 +139,88 @@ def radix_segment(ka, ia, kb, ib, lo, hi, count):
                 dst_i[p] = src_i[a]
             in_a = not in_a
         shift += RADIX_BITS
+    return in_a
+
+
+@jit
+def _min_max(keys, lo, hi):
+    kmin = keys[lo]
+    kmax = keys[lo]
+    for a in range(lo + 1, hi):
+        k = keys[a]
+        if k < kmin:
+            kmin = k
+        if k > kmax:
+            kmax = k
+    return kmin, kmax
+
+
+@jit
+def _nbits(x):
+    nbits = 0
+    while x != 0:
+        x >>= np.uint64(1)
+        nbits += 1
+    return nbits
+
+
+@jit
+def _radix_plain(ka, ia, kb, ib, lo, hi, count):
+    """Stable LSD radix sort of ``[lo, hi)`` over all bits in which keys differ."""
+    if hi - lo <= 32:
+        _insertion_sort(ka, ia, lo, hi)
+        return True
+    kmin, kmax = _min_max(ka, lo, hi)
+    return _lsd_passes(ka, ia, kb, ib, lo, hi, count, kmin, 0, _nbits(kmax - kmin))
+
+
+#: Leading bits sorted by the LSD passes; ties in them are settled afterwards.
+TOP_BITS = 3 * RADIX_BITS
+
+
+@jit
+def radix_segment(ka, ia, kb, ib, lo, hi, count):
+    """Stable sort of entries ``[lo, hi)`` of ``(ka, ia)`` by key (IDXSORT).
+
+    ``(kb, ib)`` is scratch of the same size.  Returns True when the sorted
+    result is in ``(ka, ia)`` and False when it is in ``(kb, ib)``.
+
+    Only the ``TOP_BITS`` leading bits in which the keys differ get LSD
+    passes (three, instead of up to six for float keys); runs of entries that
+    agree on those bits (rare: their coordinates agree to about ten
+    significant digits relative to the bucket's width) are then sorted on the
+    remaining bits, by insertion when short and by plain LSD passes when long.
+    Every step is stable, so ties keep index order.
+    """
+    m = hi - lo
+    if m <= 1:
+        return True
+    if m <= 32:
+        _insertion_sort(ka, ia, lo, hi)
+        return True
+    kmin, kmax = _min_max(ka, lo, hi)
+    nbits = _nbits(kmax - kmin)
+    if nbits <= TOP_BITS + RADIX_BITS:
+        return _lsd_passes(ka, ia, kb, ib, lo, hi, count, kmin, 0, nbits)
+    low = nbits - TOP_BITS
+    in_a = _lsd_passes(ka, ia, kb, ib, lo, hi, count, kmin, low, nbits)
+    if in_a:
+        rk, ri, sk, si = ka, ia, kb, ib
+    else:
+        rk, ri, sk, si = kb, ib, ka, ia
+    shl = np.uint64(low)
+    a = lo
+    while a < hi:
+        top = (rk[a] - kmin) >> shl
+        b = a + 1
+        while b < hi and ((rk[b] - kmin) >> shl) == top:
+            b += 1
+        if b - a > 1:
+            if not _radix_plain(rk, ri, sk, si, a, b, count):
+                for c in range(a, b):
+                    rk[c] = sk[c]
+                    ri[c] = si[c]
+        a = b
     return in_a
 
 
