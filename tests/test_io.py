@@ -1,0 +1,294 @@
+"""Trajectory readers: LAMMPS dumps (own reader) against ASE and MDAnalysis."""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+import numpy as np
+import pytest
+
+from granularsap.io import DumpFormatError, Frame, box_to_cell, cell_to_box, iter_frames
+from granularsap.io.pipeline import engine_cell
+
+from ._iohelpers import lammps_cell, random_frames, write_dump
+from .oracles import brute_image_pairs, sort_pairs
+
+DATA = os.path.join(os.path.dirname(__file__), os.pardir, "data")
+TRICLINIC = lammps_cell(8.0, 7.0, 9.0, xy=1.5, xz=-1.0, yz=0.7)
+ORTHO = lammps_cell(8.0, 7.0, 9.0)
+
+
+def mda_universe(path, **kw):
+    import MDAnalysis as mda
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # guessed masses, no dt
+        return mda.Universe(path, format="LAMMPSDUMP", **kw)
+
+
+def mda_frames(u):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return [(ts.frame, u.atoms.positions.copy(), ts.dimensions.copy(), u.atoms.ids.copy())
+                for ts in u.trajectory]
+
+
+class TestLammpsDumpAgainstPeers:
+    @pytest.mark.parametrize("cell", [ORTHO, TRICLINIC], ids=["ortho", "triclinic"])
+    def test_shuffled_rows_match_ase_and_mdanalysis(self, tmp_path, cell):
+        import ase.io
+
+        frames = random_frames(60, 3, cell=cell, seed=1)
+        path = tmp_path / "t.dump"
+        write_dump(path, frames, shuffle_seed=7)
+        ours = list(iter_frames(path))
+        assert [f.index for f in ours] == [0, 1, 2]
+        assert [f.step for f in ours] == [0, 1000, 2000]
+        ase_frames = ase.io.read(path, format="lammps-dump-text", index=":")
+        for fr, ref, at in zip(ours, frames, ase_frames, strict=True):
+            np.testing.assert_array_equal(fr.ids, np.arange(1, 61))
+            np.testing.assert_allclose(fr.positions, ref["positions"], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(fr.positions, at.positions, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(fr.cell, at.cell[:], rtol=0, atol=1e-12)
+            np.testing.assert_array_equal(fr.pbc, [True, True, True])
+        for fr, (idx, pos, dims, ids) in zip(ours, mda_frames(mda_universe(path)), strict=True):
+            assert fr.index == idx
+            np.testing.assert_array_equal(fr.ids, ids)
+            np.testing.assert_allclose(fr.positions, pos, atol=2e-5)  # MDAnalysis is float32
+            np.testing.assert_allclose(fr.box, dims, rtol=2e-6)
+
+    @pytest.mark.parametrize("cell", [ORTHO, TRICLINIC], ids=["ortho", "triclinic"])
+    @pytest.mark.parametrize("coords", ["x", "xu", "xs", "xsu"])
+    def test_coordinate_columns_and_any_order(self, tmp_path, cell, coords):
+        rng = np.random.default_rng(3)
+        fr = random_frames(40, 1, cell=cell, seed=2)[0]
+        fr["image"] = rng.integers(-2, 3, (40, 3))
+        names = {"x": "x y z", "xu": "xu yu zu", "xs": "xs ys zs", "xsu": "xsu ysu zsu"}
+        columns = ["id", "type", "diameter", "mol", "ix", "iy", "iz", *names[coords].split()]
+        columns = [columns[k] for k in rng.permutation(len(columns))]
+        path = tmp_path / "c.dump"
+        origin = (-1.0, 2.0, 0.5)
+        fr["positions"] = fr["positions"] + origin
+        write_dump(path, [fr], columns=columns, shuffle_seed=5, origin=origin)
+        (got,) = iter_frames(path)
+        expect = fr["positions"]
+        if coords in ("xu", "xsu"):
+            expect = expect + fr["image"] @ cell
+        np.testing.assert_allclose(got.positions, expect, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(got.origin, origin)
+        np.testing.assert_allclose(got.radius, fr["radius"], rtol=1e-15)
+        np.testing.assert_array_equal(got.columns["ix"], fr["image"][:, 0])
+        assert got.molecule is not None and got.molecule.dtype == np.int64
+
+    def test_coordinates_keyword_chooses_columns(self, tmp_path):
+        fr = random_frames(10, 1, cell=ORTHO, seed=4)[0]
+        fr["image"] = np.ones((10, 3), int)
+        path = tmp_path / "both.dump"
+        write_dump(path, [fr], columns=("id", "x", "y", "z", "xu", "yu", "zu"))
+        (wrapped,) = iter_frames(path)
+        (unwrapped,) = iter_frames(path, coordinates="xu")
+        np.testing.assert_allclose(unwrapped.positions - wrapped.positions,
+                                   np.tile(ORTHO.sum(axis=0), (10, 1)), atol=1e-12)
+        with pytest.raises(ValueError, match="unknown coordinates 'q'"):
+            list(iter_frames(path, coordinates="q"))
+
+    def test_boundary_flags_and_frame_slice(self, tmp_path):
+        frames = random_frames(20, 6, cell=ORTHO, seed=5)
+        path = tmp_path / "s.dump"
+        write_dump(path, frames, pbc="pp ff fm")
+        got = list(iter_frames(path, frames=slice(1, 6, 2)))
+        assert [f.index for f in got] == [1, 3, 5]
+        assert [f.step for f in got] == [1000, 3000, 5000]
+        np.testing.assert_array_equal(got[0].pbc, [True, False, False])
+        np.testing.assert_allclose(got[1].positions, frames[3]["positions"], atol=1e-12)
+
+    def test_string_columns_and_units_items(self, tmp_path):
+        path = tmp_path / "el.dump"
+        path.write_text("ITEM: UNITS\nlj\nITEM: TIME\n0.5\nITEM: TIMESTEP\n7\n"
+                        "ITEM: NUMBER OF ATOMS\n2\nITEM: BOX BOUNDS pp pp pp\n0 5\n0 5\n0 5\n"
+                        "ITEM: ATOMS element id x y z\nC 2 1 1 1\nO 1 2 2 2\n")
+        (fr,) = iter_frames(path)
+        assert fr.step == 7 and fr.time == 0.5
+        np.testing.assert_array_equal(fr.types, ["O", "C"])
+        np.testing.assert_array_equal(fr.positions[0], [2, 2, 2])
+
+
+class TestBundledData:
+    @pytest.mark.parametrize("name", ["lj.dump", "pour.dump", "clumps.dump"])
+    def test_bundled_dumps_match_mdanalysis(self, name):
+        path = os.path.join(DATA, name)
+        if not os.path.exists(path):
+            pytest.skip(f"data/{name} not generated")
+        ours = list(iter_frames(path, frames=slice(0, None, 5)))
+        ref = mda_frames(mda_universe(path))[::5]
+        assert len(ours) == len(ref) > 1
+        for fr, (idx, pos, dims, ids) in zip(ours, ref, strict=True):
+            assert fr.index == idx
+            np.testing.assert_array_equal(fr.ids, ids)
+            # MDAnalysis moves the box origin to 0; we keep LAMMPS's coordinates (as ASE does)
+            np.testing.assert_allclose(fr.positions - fr.origin, pos, atol=5e-5)
+            np.testing.assert_allclose(fr.box, dims, rtol=2e-6)
+        if name != "lj.dump":
+            assert ours[0].radius is not None and not ours[0].pbc.any()
+        if name == "clumps.dump":
+            assert ours[0].molecule is not None
+
+    def test_bundled_pour_matches_ase(self):
+        import ase.io
+
+        path = os.path.join(DATA, "pour.dump")
+        if not os.path.exists(path):
+            pytest.skip("data/pour.dump not generated")
+        at = ase.io.read(path, format="lammps-dump-text", index=-1)
+        fr = list(iter_frames(path))[-1]
+        np.testing.assert_allclose(fr.positions, at.positions, atol=1e-12)
+        np.testing.assert_allclose(fr.cell, at.cell[:], atol=1e-12)
+
+
+class TestTruncatedAndCorrupt:
+    def _dump(self, tmp_path, n=30, k=3):
+        path = tmp_path / "t.dump"
+        write_dump(path, random_frames(n, k, cell=ORTHO, seed=9),
+                   columns=("id", "type", "radius", "x", "y", "z"))
+        return path, path.read_text().splitlines(keepends=True)
+
+    def test_truncated_inside_atom_rows(self, tmp_path):
+        path, lines = self._dump(tmp_path)
+        per_frame = 9 + 30
+        cut = 2 * per_frame + 9 + 12  # 12 atom rows of frame 2
+        path.write_text("".join(lines[:cut]))
+        got = []
+        with pytest.raises(DumpFormatError,
+                           match=rf"t\.dump: frame 2, line {cut}: truncated: expected 30 atom "
+                                 r"rows, got 12"):
+            for fr in iter_frames(path):
+                got.append(fr.index)
+        assert got == [0, 1]
+
+    def test_truncated_inside_header(self, tmp_path):
+        path, lines = self._dump(tmp_path)
+        path.write_text("".join(lines[:39 + 5]))
+        got = []
+        with pytest.raises(DumpFormatError, match=r"frame 1, line \d+: .*(header|BOX BOUNDS)"):
+            for fr in iter_frames(path):
+                got.append(fr.index)
+        assert got == [0]
+
+    def test_last_line_cut_mid_row(self, tmp_path):
+        path, lines = self._dump(tmp_path)
+        text = "".join(lines)
+        path.write_text(text[: len(text) - len(lines[-1]) // 2 - 1])
+        got = []
+        with pytest.raises(DumpFormatError, match=rf"frame 2, line {len(lines)}: expected 6 "
+                                                  r"values on an atom row, got \d"):
+            for fr in iter_frames(path):
+                got.append(fr.index)
+        assert got == [0, 1]
+
+    def test_corrupt_number(self, tmp_path):
+        path, lines = self._dump(tmp_path)
+        bad = 39 + 9 + 4  # 0-based line index in frame 1
+        parts = lines[bad].split()
+        parts[3] = "1.0e+x"
+        lines[bad] = " ".join(parts) + "\n"
+        path.write_text("".join(lines))
+        with pytest.raises(DumpFormatError, match=rf"frame 1, line {bad + 1}: column 'x'"):
+            list(iter_frames(path))
+
+    def test_garbage_between_frames(self, tmp_path):
+        path, lines = self._dump(tmp_path)
+        lines.insert(39, "hello\n")
+        path.write_text("".join(lines))
+        with pytest.raises(DumpFormatError, match=r"frame 1, line 40: expected an 'ITEM:' line"):
+            list(iter_frames(path))
+
+    def test_missing_file(self, tmp_path):
+        with pytest.raises(FileNotFoundError, match="nope.dump"):
+            list(iter_frames(tmp_path / "nope.dump"))
+
+    def test_unknown_format(self, tmp_path):
+        path, _ = self._dump(tmp_path)
+        with pytest.raises(ValueError, match="unknown format 'pdbx'"):
+            list(iter_frames(path, format="pdbx"))
+
+
+class TestAseAndMDAnalysisFiles:
+    def test_ase_traj_and_extxyz(self, tmp_path):
+        import ase
+        import ase.io
+
+        rng = np.random.default_rng(0)
+        images = []
+        for k in range(3):
+            a = ase.Atoms("Ar20", positions=rng.uniform(0, 6, (20, 3)),
+                          cell=[[6, 0, 0], [1, 6, 0], [0.5, 0.5, 6]], pbc=[True, True, k != 1])
+            a.set_array("radius", rng.uniform(0.2, 0.4, 20))
+            images.append(a)
+        for name in ("t.traj", "t.extxyz"):
+            path = tmp_path / name
+            ase.io.write(path, images)
+            ref = ase.io.read(path, index=":")
+            got = list(iter_frames(path))
+            assert len(got) == 3
+            for fr, at in zip(got, ref, strict=True):
+                np.testing.assert_allclose(fr.positions, at.positions, atol=0)
+                np.testing.assert_allclose(fr.cell, at.cell[:], atol=0)
+                np.testing.assert_array_equal(fr.pbc, at.pbc)
+                np.testing.assert_array_equal(fr.ids, np.arange(20))
+                if name.endswith("extxyz"):  # .traj keeps standard arrays only
+                    np.testing.assert_allclose(fr.radius, at.arrays["radius"])
+            assert [f.index for f in iter_frames(path, frames=slice(1, 3))] == [1, 2]
+
+    def test_dcd_with_topology(self, tmp_path):
+        import MDAnalysis as mda
+
+        rng = np.random.default_rng(1)
+        n = 25
+        u = mda.Universe.empty(n, trajectory=True, atom_resindex=np.zeros(n, int))
+        u.add_TopologyAttr("names", ["C"] * n)
+        u.add_TopologyAttr("ids", np.arange(1, n + 1))
+        u.atoms.positions = rng.uniform(0, 10, (n, 3))
+        u.dimensions = [10, 11, 12, 90, 80, 70]
+        pdb = tmp_path / "t.pdb"
+        dcd = tmp_path / "t.dcd"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            u.atoms.write(pdb)
+            with mda.Writer(str(dcd), n) as w:
+                for _ in range(3):
+                    u.atoms.positions = rng.uniform(0, 10, (n, 3))
+                    w.write(u.atoms)
+            ref = mda.Universe(str(pdb), str(dcd))
+            want = [(ref.atoms.positions.astype(float), ts.dimensions.copy())
+                    for ts in ref.trajectory]
+            got = list(iter_frames(dcd, topology=pdb))
+        assert len(got) == 3
+        for fr, (pos, dims) in zip(got, want, strict=True):
+            np.testing.assert_array_equal(fr.positions, pos)
+            np.testing.assert_allclose(fr.box, dims, rtol=1e-6)
+
+
+class TestCells:
+    @pytest.mark.parametrize("box", [[10, 11, 12, 90, 90, 90], [10, 11, 12, 70, 100, 80]])
+    def test_box_cell_roundtrip(self, box):
+        from MDAnalysis.lib.mdamath import triclinic_vectors
+
+        cell = box_to_cell(box)
+        np.testing.assert_allclose(cell, triclinic_vectors(np.array(box, np.float32)),
+                                   rtol=1e-6, atol=1e-5)
+        np.testing.assert_allclose(cell_to_box(cell), box, rtol=1e-12)
+
+    @pytest.mark.parametrize("pbc", [(True, True, False), (False, True, False),
+                                     (True, False, True)])
+    def test_partly_periodic_engine_cell_equals_image_oracle(self, pbc):
+        granularsap = pytest.importorskip("granularsap")
+        rng = np.random.default_rng(4)
+        cell = TRICLINIC
+        pos = rng.uniform(0, 1, (80, 3)) @ cell
+        radii = rng.uniform(0.3, 0.8, 80)
+        fr = Frame(index=0, positions=pos, ids=np.arange(80), cell=cell, pbc=np.array(pbc))
+        box = engine_cell(fr, 2 * radii.max())
+        got = granularsap.sphere_contacts(pos, radii, box=box)
+        want, _ = brute_image_pairs(pos, 0.0, cell=cell, pbc=pbc, radii=radii)
+        np.testing.assert_array_equal(sort_pairs(np.sort(got, axis=1)), sort_pairs(want))
