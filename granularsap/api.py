@@ -29,9 +29,14 @@ _MIN_BUCKET = 256
 _MIN_BUCKETS = 16
 #: ... and this many per thread, so that buckets balance across threads.
 _BUCKETS_PER_THREAD = 8
-#: Boxes below which the sequential path is used (parallel start-up dominates).
-_PARALLEL_MIN = 4096
+#: Boxes below which one thread is used unless n_threads asks otherwise
+#: (starting a parallel region costs more than the whole search).
+_PARALLEL_MIN = 32768
 MAX_BOXES = (1 << 30) - 1
+#: Pairs per box of the last search in this process: the first guess of a
+#: fresh engine's pair buffers (repeated one-shot calls on similar data then
+#: fill them in one pass).
+_LAST_PAIRS_PER_BOX = [2.0]
 #: Leaf bits of one pairing partition's sharded SuccTree (2**21 bits = 256 KiB).
 _PAIR_TREE_BITS = 1 << 21
 
@@ -220,14 +225,16 @@ class SweepAndPrune:
             NaN or inf, wrong shapes, mismatched lengths, or ``lower > upper``.
         """
         lower, upper = _check_boxes(lower, upper)
-        with num_threads(self.n_threads) as threads:
+        threads = self.n_threads
+        if threads is None and self._partitions is None and len(lower) < _PARALLEL_MIN:
+            threads = 1  # a parallel region costs more than the whole job
+        with num_threads(threads) as threads:
             return self._update(lower, upper, threads)
 
     def _update(self, lower, upper, threads):
         t_start = time.perf_counter()
         n = lower.shape[0]
-        path = self._path or ("sequential" if threads == 1 or n < _PARALLEL_MIN
-                              else "parallel")
+        path = self._path or "parallel"
         parts = 1 if path == "sequential" else (self._partitions or threads)
         buckets = max(1, min(max(_MIN_BUCKETS, _BUCKETS_PER_THREAD * threads),
                              (2 * n) // _MIN_BUCKET))
@@ -332,6 +339,7 @@ class SweepAndPrune:
         sw.assemble(self._out, counts, pairs)
         t3 = time.perf_counter()
         self._pair_hint = int(counts.max())
+        _LAST_PAIRS_PER_BOX[0] = total / max(n, 1)
         self._finish(stats, pairs, tested,
                      {"sort": t1 - t0, "candidates": cand_s, "pairing": t3 - t1 - cand_s},
                      disp, t_start)
@@ -348,9 +356,11 @@ class SweepAndPrune:
         return -(-parts // threads) * threads
 
     def _capacity(self, n, parts):
+        """Pairs each partition's buffer should hold (a guess; it grows)."""
         if self._pair_hint is not None:
             return max(1024, self._pair_hint + self._pair_hint // 8)
-        return max(1024, (4 * n) // parts)
+        ratio = max(_LAST_PAIRS_PER_BOX[0], 2.0)
+        return 1024 + int(1.25 * ratio * n / parts)
 
     @staticmethod
     def _grow(out, parts, cap, keep=None):

@@ -480,10 +480,9 @@ def assemble(out, counts, pairs):
     starts = np.zeros(m + 1, np.int64)
     for p in range(m):
         starts[p + 1] = starts[p] + counts[p]
-    for p in range(m):
+    for p in numba.prange(m):
         s = starts[p]
-        c = counts[p]
         buf = out[p]
-        for k in numba.prange(c):
+        for k in range(counts[p]):
             pairs[s + k, 0] = buf[2 * k]
             pairs[s + k, 1] = buf[2 * k + 1]
