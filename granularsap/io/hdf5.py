@@ -410,8 +410,9 @@ class ContactsFile:
                              f"up to {SCHEMA_VERSION}: upgrade granularsap")
         self.complete = bool(attrs["complete"])
         if not self.complete and not allow_incomplete:
+            n_done = int(attrs["n_frames"])
             self.file.close()
-            raise IncompleteFileError(f"{path} is incomplete ({int(attrs['n_frames'])} frames "
+            raise IncompleteFileError(f"{path} is incomplete ({n_done} frames "
                                       "written): rerun the same command to resume it")
         self.n_frames = int(attrs["n_frames"])
         self.schema_version = version
