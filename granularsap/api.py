@@ -288,8 +288,8 @@ class SweepAndPrune:
             self._counts[0] = cnt
             counts = self._counts[:1]
         else:
-            sw.candidates_parallel(self._ix, n, self._info, self._rinv, self._trees_cand,
-                                   self._off_full, self._counts)
+            sw.candidates_parallel(self._ix, n, self._info, self._rinv, self._idx_tmp,
+                                   self._trees_cand, self._off_full, self._counts)
             t2 = time.perf_counter()
             cand_s = t2 - t1
             z0, inv_h, reach, nbins = sw.third_axis_bins(lower, upper, a2, self.max_bins)

@@ -103,13 +103,15 @@ def pairing_sequential(iy, n, rank, rinv, lcand, ucand, br, tree, off, out):
 
 
 @pjit
-def candidates_parallel(ix, n, info, rinv, trees, off, counts):
+def candidates_parallel(ix, n, info, rinv, rk, trees, off, counts):
     """Algorithm 3: parallel candidate generation on the primary axis.
 
     ``trees``: (m, size) private SuccTrees over ``n`` ranks; ``counts``: (m,)
-    scratch.  Fills ``rinv`` and, per object ``i``, the record ``info[i]`` =
-    (rank ``R[i]``, ``L[i]``, ``U[i]``, -): one cache line serves every
-    look-up of an object in this phase and the next.
+    scratch; ``rk``: (2n,) scratch that receives the rank of every endpoint in
+    sorted order, so the sweeps after the first read ranks sequentially.
+    Fills ``rinv`` and, per object ``i``, the record ``info[i]`` = (rank
+    ``R[i]``, ``L[i]``, ``U[i]``, -): one cache line serves every look-up of
+    an object in this phase and the next.
     """
     m = trees.shape[0]
     n2 = 2 * n
@@ -129,9 +131,9 @@ def candidates_parallel(ix, n, info, rinv, trees, off, counts):
         c = counts[p]
         counts[p] = total
         total += c
-    # Lines 10-11: ranks.  This loop must finish before the next one starts:
-    # a partition holding a high endpoint reads the rank that another
-    # partition assigned at the low endpoint.
+    # Lines 10-11: ranks of low endpoints.  This loop must finish before the
+    # next one starts: a partition holding a high endpoint reads the rank
+    # that another partition assigned at the low endpoint.
     for p in numba.prange(m):
         a = min(p * delta, n2)
         b = min(a + delta, n2)
@@ -141,6 +143,7 @@ def candidates_parallel(ix, n, info, rinv, trees, off, counts):
             if i < n:
                 info[i, 0] = c
                 rinv[c] = i
+                rk[k] = c
                 c += 1
     # Lines 12-14: private trees holding the objects with exactly one endpoint
     # in the partition (toggles: insert on low, delete on high).
@@ -151,10 +154,9 @@ def candidates_parallel(ix, n, info, rinv, trees, off, counts):
         st.clear(tree, off)
         for k in range(a, b):
             i = ix[k]
-            if i < n:
-                st.toggle(tree, off, info[i, 0])
-            else:
-                st.toggle(tree, off, info[i - n, 0])
+            if i >= n:
+                rk[k] = info[i - n, 0]
+            st.toggle(tree, off, rk[k])
     # Line 15: exclusive all-prefix symmetric differences, word by word, so
     # that tree p holds the objects active when partition p begins.
     nwords = off[1]
@@ -177,16 +179,17 @@ def candidates_parallel(ix, n, info, rinv, trees, off, counts):
         c = counts[p]
         for k in range(a, b):
             i = ix[k]
+            r = rk[k]
             if i < n:
                 c += 1
-                if st.is_empty(tree, off):
+                if st.is_empty(tree, off):  # line 19
                     info[i, 1] = c
                 else:
                     info[i, 1] = st.minimum(tree, off)
-                st.ins(tree, off, info[i, 0])
+                st.ins(tree, off, r)  # line 20
             else:
-                info[i - n, 2] = c
-                st.delete(tree, off, info[i - n, 0])
+                info[i - n, 2] = c  # line 22
+                st.delete(tree, off, r)  # line 23
 
 
 @jit
