@@ -82,9 +82,10 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
     -------
     a, b : (k,) int64
         Owned indices, ``a <= b`` (``a == b`` only for self images).
-    shift : (k, 3) int64
+    shift : (k, 3) int64 or None
         ``S`` such that the separation is ``pos[b] - pos[a] + S @ cell``
-        (``pos`` as chosen by ``pos_for_distance``; wrapped positions by default).
+        (``pos`` as chosen by ``pos_for_distance``); only when ``minimum_image``
+        is False, else None.
     dist : (k,) float64
     wrapped : (n, 3) float64
         Positions the distances refer to (wrapped, or the input).
@@ -135,25 +136,13 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
     cand = np.ascontiguousarray(cand, dtype=np.int64)
 
     with num_threads(n_threads) as threads:
-        keep, dist = narrow.narrow_candidates(
+        a, b, shift, dist = narrow.narrow_candidates(
             cand, n, np.ascontiguousarray(owner, dtype=np.int64),
             np.ascontiguousarray(gshift, dtype=np.int64), np.ascontiguousarray(pos_d),
             np.ascontiguousarray(nshift), np.ascontiguousarray(cell, dtype=np.float64),
             np.ascontiguousarray(rad), skin, strict=strict,
-            self_images=minimum_image is False, n_threads=threads)
-    sel = cand[keep]
-    dist = dist[keep]
-    p = np.minimum(sel[:, 0], sel[:, 1])
-    q = np.maximum(sel[:, 0], sel[:, 1])
-    is_ghost = q >= n
-    a = p
-    b = q.copy()
-    shift = np.zeros((len(sel), 3), dtype=np.int64)
-    if is_ghost.any():
-        g = q[is_ghost] - n
-        b[is_ghost] = owner[g]
-        shift[is_ghost] = gshift[g]
-    shift += nshift[a] - nshift[b]
+            self_images=minimum_image is False, want_shift=minimum_image is False,
+            n_threads=threads)
     if periodic_run and minimum_image is not False and len(a):
         widths = periodic.perpendicular_widths(cell)
         if (minimum_image == "reduce"
@@ -164,7 +153,7 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
             first = np.ones(len(order), dtype=bool)
             first[1:] = key[order][1:] != key[order][:-1]
             order = order[first]
-            a, b, shift, dist = a[order], b[order], shift[order], dist[order]
+            a, b, dist = a[order], b[order], dist[order]
     return a, b, shift, dist, pos_d
 
 

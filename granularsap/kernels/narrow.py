@@ -16,8 +16,10 @@ The distance vector is ``(pos[b] - pos[a]) + S0 a + S1 b + S2 c`` with
 ``S = T - nshift[b] + nshift[a]`` added one cell vector at a time (the order
 MDAnalysis's triclinic minimum image uses), squared norm summed x, y, z, then
 one ``sqrt``; a pair is kept iff ``d <= rad[a] + rad[b] + skin`` (or ``<`` for
-ASE semantics).  Cost O(k) for k candidates, one independent iteration per
-candidate; each iteration writes only its own output slot.
+ASE semantics).  Cost O(k) for k candidates in two passes over contiguous
+chunks: pass 1 flags and counts per chunk, pass 2 writes each chunk's kept
+pairs from its prefix-sum offset, so no two threads write the same slot and the
+output order does not depend on the thread count.
 """
 
 from __future__ import annotations
@@ -34,74 +36,116 @@ PARALLEL_MIN = 16384
 
 
 @jit
-def _narrow_range(t_lo, t_hi, cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
-                  strict, self_images, keep, dist):
-    """Flag candidates ``t_lo <= t < t_hi`` that are within range (``keep``, ``dist``)."""
+def _resolve(t, cand, n_own, owner, gshift, nshift):
+    """Owned indices ``a``, ``b`` and shift ``S`` of candidate ``t``; ``a < 0`` to drop it."""
+    p = cand[t, 0]
+    q = cand[t, 1]
+    if p > q:
+        p, q = q, p
+    s0 = 0
+    s1 = 0
+    s2 = 0
+    if p >= n_own:
+        return -1, -1, s0, s1, s2
+    a = p
+    if q < n_own:
+        b = q
+    else:
+        g = q - n_own
+        b = owner[g]
+        s0 = gshift[g, 0]
+        s1 = gshift[g, 1]
+        s2 = gshift[g, 2]
+        if a > b:
+            return -1, -1, s0, s1, s2
+        if a == b:
+            # self image, canonical for lexicographically positive T only; the
+            # caller decides whether self images are wanted at all
+            if not (s0 > 0 or (s0 == 0 and (s1 > 0 or (s1 == 0 and s2 > 0)))):
+                return -1, -1, s0, s1, s2
+    s0 = s0 - nshift[b, 0] + nshift[a, 0]
+    s1 = s1 - nshift[b, 1] + nshift[a, 1]
+    s2 = s2 - nshift[b, 2] + nshift[a, 2]
+    return a, b, s0, s1, s2
+
+
+@jit
+def _separation(pos, a, b, s0, s1, s2, cell):
+    """``|pos[b] - pos[a] + S @ cell|``, cell vectors added one at a time."""
+    dx = pos[b, 0] - pos[a, 0]
+    dy = pos[b, 1] - pos[a, 1]
+    dz = pos[b, 2] - pos[a, 2]
+    if s0 != 0:
+        dx += s0 * cell[0, 0]
+        dy += s0 * cell[0, 1]
+        dz += s0 * cell[0, 2]
+    if s1 != 0:
+        dx += s1 * cell[1, 0]
+        dy += s1 * cell[1, 1]
+        dz += s1 * cell[1, 2]
+    if s2 != 0:
+        dx += s2 * cell[2, 0]
+        dy += s2 * cell[2, 1]
+        dz += s2 * cell[2, 2]
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@jit
+def _flag_range(t_lo, t_hi, cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
+                strict, self_images, keep):
+    """Pass 1: ``keep[t]`` for candidates ``t_lo <= t < t_hi``; returns how many."""
+    count = 0
     for t in range(t_lo, t_hi):
         keep[t] = False
-        dist[t] = 0.0
-        p = cand[t, 0]
-        q = cand[t, 1]
-        if p > q:
-            p, q = q, p
-        if p >= n_own:
+        a, b, s0, s1, s2 = _resolve(t, cand, n_own, owner, gshift, nshift)
+        if a < 0 or (a == b and not self_images):
             continue
-        a = p
-        s0 = 0
-        s1 = 0
-        s2 = 0
-        if q < n_own:
-            b = q
-        else:
-            g = q - n_own
-            b = owner[g]
-            s0 = gshift[g, 0]
-            s1 = gshift[g, 1]
-            s2 = gshift[g, 2]
-            if a > b:
-                continue
-            if a == b:
-                if not self_images:
-                    continue
-                if not (s0 > 0 or (s0 == 0 and (s1 > 0 or (s1 == 0 and s2 > 0)))):
-                    continue
-        s0 = s0 - nshift[b, 0] + nshift[a, 0]
-        s1 = s1 - nshift[b, 1] + nshift[a, 1]
-        s2 = s2 - nshift[b, 2] + nshift[a, 2]
-        dx = pos[b, 0] - pos[a, 0]
-        dy = pos[b, 1] - pos[a, 1]
-        dz = pos[b, 2] - pos[a, 2]
-        if s0 != 0:
-            dx += s0 * cell[0, 0]
-            dy += s0 * cell[0, 1]
-            dz += s0 * cell[0, 2]
-        if s1 != 0:
-            dx += s1 * cell[1, 0]
-            dy += s1 * cell[1, 1]
-            dz += s1 * cell[1, 2]
-        if s2 != 0:
-            dx += s2 * cell[2, 0]
-            dy += s2 * cell[2, 1]
-            dz += s2 * cell[2, 2]
-        d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        d = _separation(pos, a, b, s0, s1, s2, cell)
         thr = rad[a] + rad[b] + skin
-        if strict:
-            ok = d < thr
-        else:
-            ok = d <= thr
-        if ok:
+        if d < thr or (d == thr and not strict):
             keep[t] = True
-            dist[t] = d
+            count += 1
+    return count
+
+
+@jit
+def _fill_range(t_lo, t_hi, o, cand, n_own, owner, gshift, pos, nshift, cell, keep,
+                want_shift, out_a, out_b, out_s, out_d):
+    """Pass 2: write the kept candidates of ``[t_lo, t_hi)`` from output row ``o`` on."""
+    for t in range(t_lo, t_hi):
+        if not keep[t]:
+            continue
+        a, b, s0, s1, s2 = _resolve(t, cand, n_own, owner, gshift, nshift)
+        out_a[o] = a
+        out_b[o] = b
+        out_d[o] = _separation(pos, a, b, s0, s1, s2, cell)
+        if want_shift:
+            out_s[o, 0] = s0
+            out_s[o, 1] = s1
+            out_s[o, 2] = s2
+        o += 1
 
 
 @pjit
-def _narrow_parallel(n_chunks, cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
-                     strict, self_images, keep, dist):
-    """``_narrow_range`` over ``n_chunks`` contiguous chunks in parallel."""
+def _flag_parallel(n_chunks, cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
+                   strict, self_images, keep, counts):
+    """``_flag_range`` over ``n_chunks`` contiguous chunks; ``counts[c]`` per chunk."""
     k = cand.shape[0]
     for c in numba.prange(n_chunks):
-        _narrow_range(c * k // n_chunks, (c + 1) * k // n_chunks, cand, n_own, owner, gshift,
-                      pos, nshift, cell, rad, skin, strict, self_images, keep, dist)
+        counts[c] = _flag_range(c * k // n_chunks, (c + 1) * k // n_chunks, cand, n_own,
+                                owner, gshift, pos, nshift, cell, rad, skin, strict,
+                                self_images, keep)
+
+
+@pjit
+def _fill_parallel(n_chunks, offsets, cand, n_own, owner, gshift, pos, nshift, cell, keep,
+                   want_shift, out_a, out_b, out_s, out_d):
+    """``_fill_range`` per chunk, chunk ``c`` writing from ``offsets[c]``."""
+    k = cand.shape[0]
+    for c in numba.prange(n_chunks):
+        _fill_range(c * k // n_chunks, (c + 1) * k // n_chunks, offsets[c], cand, n_own,
+                    owner, gshift, pos, nshift, cell, keep, want_shift, out_a, out_b, out_s,
+                    out_d)
 
 
 @jit
@@ -190,19 +234,40 @@ def _chunks(k, n_threads):
 
 
 def narrow_candidates(cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
-                      strict=False, self_images=False, n_threads=1):
-    """Flag in-range candidates; returns ``(keep, dist)`` arrays of length k."""
+                      strict=False, self_images=False, want_shift=False, n_threads=1):
+    """Exact test of every candidate; returns ``(a, b, shift, dist)`` of the kept ones.
+
+    ``a <= b`` are owned indices, ``shift`` the ``(m, 3)`` lattice shifts (``None``
+    unless ``want_shift``) and ``dist`` the float64 distances.  Two passes (flag
+    and count, then write) so that memory beyond the output is one byte per
+    candidate.
+    """
     k = len(cand)
     keep = np.empty(k, dtype=np.bool_)
-    dist = np.empty(k, dtype=np.float64)
-    args = (cand, np.int64(n_own), owner, gshift, pos, nshift, cell, rad, float(skin),
-            bool(strict), bool(self_images), keep, dist)
     chunks = _chunks(k, n_threads)
+    common = (cand, np.int64(n_own), owner, gshift, pos, nshift, cell)
     if chunks:
-        _narrow_parallel(chunks, *args)
-    elif k:
-        _narrow_range(0, k, *args)
-    return keep, dist
+        counts = np.zeros(chunks, dtype=np.int64)
+        _flag_parallel(chunks, *common, rad, float(skin), bool(strict), bool(self_images),
+                       keep, counts)
+    else:
+        chunks = 1
+        counts = np.array([_flag_range(0, k, *common, rad, float(skin), bool(strict),
+                                       bool(self_images), keep) if k else 0], dtype=np.int64)
+    offsets = np.zeros(chunks + 1, dtype=np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    m = int(offsets[-1])
+    out_a = np.empty(m, dtype=np.int64)
+    out_b = np.empty(m, dtype=np.int64)
+    out_s = np.empty((m if want_shift else 0, 3), dtype=np.int64)
+    out_d = np.empty(m, dtype=np.float64)
+    if m:
+        if chunks > 1:
+            _fill_parallel(chunks, offsets, *common, keep, bool(want_shift), out_a, out_b,
+                           out_s, out_d)
+        else:
+            _fill_range(0, k, 0, *common, keep, bool(want_shift), out_a, out_b, out_s, out_d)
+    return out_a, out_b, (out_s if want_shift else None), out_d
 
 
 def clump_pairs(ca, cb, ct, start, members, u, cell, radii, skin, n_threads=1):
