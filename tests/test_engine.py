@@ -246,3 +246,14 @@ def test_error_threads():
         box_overlaps(np.zeros((2, 3)), np.ones((2, 3)), n_threads=0)
     with pytest.raises(TypeError, match=r"n_threads must be an int or None"):
         SweepAndPrune(n_threads=1.5)
+
+
+@pytest.mark.parametrize("path,threads,parts", PATHS)
+def test_coordinates_near_the_float_range(path, threads, parts):
+    """Extents that overflow to inf must not break the third-axis shards."""
+    lo = np.array([[0, 0, -1e308], [0, 0, 1e308 - 1], [0, 0, 0.0], [-1e308, 5, 5]])
+    hi = lo.copy()
+    hi[:, 2] = [1e308, 1e308, 1.0, 1e308]
+    hi[3] = [1e308, 6, 1e308]
+    pairs = _box_overlaps_path(lo, hi, path=path, n_threads=threads, partitions=parts)
+    check_pairs(pairs, lo, hi)

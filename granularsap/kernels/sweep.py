@@ -221,6 +221,8 @@ def third_axis_bins(lower, upper, a2, kmax):
     span = zmax - zmin
     reach = ext + 1e-12 * (max(abs(zmin), abs(zmax)) + ext)
     k = 1
+    if not (np.isfinite(span) and np.isfinite(reach)):
+        return zmin, 0.0, reach, 1  # coordinates near the float range: no shards
     if reach > 0.0:
         k = int(min(float(kmax), span / reach))
     elif span > 0.0:
