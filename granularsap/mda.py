@@ -169,9 +169,16 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
     if n == 0 or len(conf) == 0:
         return _finish(np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0),
                        min_cutoff, return_distances)
+    # the smaller set gets boxes of half-width max_cutoff, the other set points
+    # (zero-size boxes): a cross pair is in range iff d <= max_cutoff + 0, and the
+    # larger set produces no pairs among itself in the broad phase
     pos = np.concatenate([ref, conf])
-    rad = np.full(len(pos), 0.5 * max_cutoff)
+    rad = np.zeros(len(pos))
+    if n <= len(conf):
+        rad[:n] = max_cutoff
+    else:
+        rad[n:] = max_cutoff
     a, b, _, dist, _ = _search(pos, rad, 0.0, cell, _PBC, n_threads=n_threads,
-                               minimum_image="reduce", what="max_cutoff")
-    cross = (a < n) & (b >= n)
-    return _finish(a[cross], b[cross] - n, dist[cross], min_cutoff, return_distances)
+                               minimum_image="reduce", what="max_cutoff", split=n,
+                               reach_max=max_cutoff)
+    return _finish(a, b - n, dist, min_cutoff, return_distances)

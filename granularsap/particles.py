@@ -57,7 +57,7 @@ def _check_range(reach, cell, pbc, what):
 
 def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
             minimum_image=True, pos_for_distance=None,
-            what="interaction range 2 * max(radii) + skin"):
+            what="interaction range 2 * max(radii) + skin", split=0, reach_max=None):
     """Core pair search shared by the public functions and the drop-ins.
 
     Parameters
@@ -74,6 +74,10 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
         dropped.  False: every image pair within range (ASE), returned with shifts.
         "reduce": like True, but a range beyond half the cell width is handled by
         searching every image and keeping the nearest one per pair.
+    split : int
+        If positive, only pairs ``a < split <= b`` (two point sets).
+    reach_max : float, optional
+        Largest pair range, if smaller than ``2 * max(rad) + skin``.
     pos_for_distance : None or "original"
         Which coordinates the distance is computed from: the wrapped ones
         (default, MDAnalysis) or the caller's own with integer shifts (ASE).
@@ -94,7 +98,8 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
     half = rad + 0.5 * skin
     periodic_run = cell is not None and bool(np.any(pbc))
     if periodic_run:
-        reach_max = 2.0 * (rad.max() if n else 0.0) + skin
+        if reach_max is None:
+            reach_max = 2.0 * (rad.max() if n else 0.0) + skin
         if minimum_image == "reduce":
             widths = periodic.perpendicular_widths(cell)
             if reach_max <= 0.5 * widths[pbc].min() * (1.0 + 1e-12):
@@ -142,11 +147,11 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
             np.ascontiguousarray(nshift), np.ascontiguousarray(cell, dtype=np.float64),
             np.ascontiguousarray(rad), skin, strict=strict,
             self_images=minimum_image is False, want_shift=minimum_image is False,
-            n_threads=threads)
+            split=split, n_threads=threads)
     if periodic_run and minimum_image is not False and len(a):
         widths = periodic.perpendicular_widths(cell)
         if (minimum_image == "reduce"
-                or 2.0 * (2.0 * rad.max() + skin) >= widths[pbc].min() * (1.0 - 1e-9)):
+                or 2.0 * reach_max >= widths[pbc].min() * (1.0 - 1e-9)):
             # range exactly half a width: both images of a pair may tie
             key = a * n + b
             order = np.lexsort((dist, key))

@@ -169,6 +169,14 @@ class TestCappedDistance:
         pairs = mda.capped_distance(ref, conf, 4.0, box=ORTHO, return_distances=False)
         assert pairs.shape[1] == 2 and np.all(pairs[:, 0] == 0)
 
+    @pytest.mark.parametrize("sizes", [(10, 40), (40, 10)])
+    def test_cutoff_beyond_half_the_box_uses_minimum_image(self, sizes):
+        box = [8.0, 8.0, 8.0, 90, 90, 90]
+        ref, conf = _points(30, sizes[0], ORTHO), _points(31, sizes[1], ORTHO)
+        got = mda.capped_distance(ref, conf, 5.0, box=box)
+        want = mda_dist.capped_distance(ref, conf, 5.0, box=box, method="bruteforce")
+        _assert_same(got, want, swap=False)
+
     def test_empty(self):
         pairs, d = mda.capped_distance(np.zeros((0, 3)), np.zeros((4, 3)), 1.0)
         assert pairs.shape == (0, 2) and d.shape == (0,)

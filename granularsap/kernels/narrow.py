@@ -92,13 +92,19 @@ def _separation(pos, a, b, s0, s1, s2, cell):
 
 @jit
 def _flag_range(t_lo, t_hi, cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
-                strict, self_images, keep):
-    """Pass 1: ``keep[t]`` for candidates ``t_lo <= t < t_hi``; returns how many."""
+                strict, self_images, split, keep):
+    """Pass 1: ``keep[t]`` for candidates ``t_lo <= t < t_hi``; returns how many.
+
+    ``split > 0`` keeps only pairs across the split (``a < split <= b``): the
+    two point sets of ``capped_distance``.
+    """
     count = 0
     for t in range(t_lo, t_hi):
         keep[t] = False
         a, b, s0, s1, s2 = _resolve(t, cand, n_own, owner, gshift, nshift)
         if a < 0 or (a == b and not self_images):
+            continue
+        if split > 0 and (a < split) == (b < split):
             continue
         d = _separation(pos, a, b, s0, s1, s2, cell)
         thr = rad[a] + rad[b] + skin
@@ -128,13 +134,13 @@ def _fill_range(t_lo, t_hi, o, cand, n_own, owner, gshift, pos, nshift, cell, ke
 
 @pjit
 def _flag_parallel(n_chunks, cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
-                   strict, self_images, keep, counts):
+                   strict, self_images, split, keep, counts):
     """``_flag_range`` over ``n_chunks`` contiguous chunks; ``counts[c]`` per chunk."""
     k = cand.shape[0]
     for c in numba.prange(n_chunks):
         counts[c] = _flag_range(c * k // n_chunks, (c + 1) * k // n_chunks, cand, n_own,
                                 owner, gshift, pos, nshift, cell, rad, skin, strict,
-                                self_images, keep)
+                                self_images, split, keep)
 
 
 @pjit
@@ -234,7 +240,8 @@ def _chunks(k, n_threads):
 
 
 def narrow_candidates(cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
-                      strict=False, self_images=False, want_shift=False, n_threads=1):
+                      strict=False, self_images=False, want_shift=False, split=0,
+                      n_threads=1):
     """Exact test of every candidate; returns ``(a, b, shift, dist)`` of the kept ones.
 
     ``a <= b`` are owned indices, ``shift`` the ``(m, 3)`` lattice shifts (``None``
@@ -249,11 +256,12 @@ def narrow_candidates(cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
     if chunks:
         counts = np.zeros(chunks, dtype=np.int64)
         _flag_parallel(chunks, *common, rad, float(skin), bool(strict), bool(self_images),
-                       keep, counts)
+                       np.int64(split), keep, counts)
     else:
         chunks = 1
         counts = np.array([_flag_range(0, k, *common, rad, float(skin), bool(strict),
-                                       bool(self_images), keep) if k else 0], dtype=np.int64)
+                                       bool(self_images), np.int64(split), keep) if k else 0],
+                          dtype=np.int64)
     offsets = np.zeros(chunks + 1, dtype=np.int64)
     np.cumsum(counts, out=offsets[1:])
     m = int(offsets[-1])
