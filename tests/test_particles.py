@@ -158,6 +158,26 @@ class TestSphereContacts:
         pos = np.array([[0.0, 0, 0], [0.75, 0, 0], [0.75, 0.75, 0.0]])
         assert _sorted(sphere_contacts(pos, [0.5, 0.25, 0.5]))[0].tolist() == [[0, 1], [1, 2]]
 
+    @pytest.mark.parametrize("box", ["none", "triclinic"])
+    def test_parallel_narrow_phase_path(self, box, monkeypatch):
+        # force the chunked parallel kernels on a small input and compare with the
+        # serial kernels and the oracle
+        from granularsap.kernels import narrow
+
+        pos = _points(11, 90)
+        radii = np.random.default_rng(11).uniform(0.1, 1.2, 90)
+        serial = _sorted(*sphere_contacts(pos, radii, box=BOXES[box], n_threads=2,
+                                          return_distances=True))
+        monkeypatch.setattr(narrow, "PARALLEL_MIN", 0)
+        par = _sorted(*sphere_contacts(pos, radii, box=BOXES[box], n_threads=2,
+                                       return_distances=True))
+        assert np.array_equal(serial[0], par[0]) and np.array_equal(serial[1], par[1])
+        _assert_pairs(par, brute_image_pairs(pos, 0.0, _cell(BOXES[box]), radii=radii))
+        pos, radii, ids = _make_clumps(12, 40, 3, 8.0)
+        sp, cp = clump_contacts(pos, radii, ids, box=BOXES[box], n_threads=2)
+        wp, _, wcp = _clump_oracle(pos, radii, ids, 0.0, _cell(BOXES[box]))
+        assert np.array_equal(_sorted(sp)[0], wp) and np.array_equal(cp, wcp)
+
     def test_thread_count_does_not_change_result(self):
         rng = np.random.default_rng(5)
         pos = rng.uniform(0, 20, (3000, 3))
