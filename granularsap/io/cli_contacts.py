@@ -87,6 +87,9 @@ def add_arguments(parser):
                       help="use an existing dask.distributed scheduler, e.g. tcp://host:8786")
     parser.add_argument("--no-resume", action="store_true",
                         help="start over even if OUT.h5.partial from an interrupted run exists")
+    parser.add_argument("--commit-seconds", type=_nonneg, default=1.0, metavar="S",
+                        help="make finished frames durable at least every S seconds "
+                             "(default 1; 0 = after every frame)")
     parser.add_argument("-f", "--force", action="store_true",
                         help="overwrite OUT.h5 if it exists")
     parser.add_argument("-q", "--quiet", action="store_true",
@@ -126,22 +129,32 @@ def run(args) -> int:
 
     import signal
 
-    def on_term(signum, frame):  # kill: stop like Ctrl-C, so queued frames are committed
-        raise KeyboardInterrupt
+    # SIGTERM/Ctrl-C: finish the frame in hand, commit, exit 130 (resumable); a second
+    # signal interrupts at once.  (An exception raised straight from a signal handler can
+    # land in a destructor and be swallowed, so the first signal only sets a flag.)
+    stop = []
 
-    old_term = signal.signal(signal.SIGTERM, on_term)
+    def on_signal(signum, frame):
+        if stop:
+            raise KeyboardInterrupt
+        stop.append(signum)
+
+    old_handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     bar = None
     if not args.quiet:
         from tqdm import tqdm
 
+        # shown on a terminal only, and only for runs longer than half a second
         bar = tqdm(total=None, unit="frame", desc="contacts", file=sys.stderr,
-                   dynamic_ncols=True, mininterval=0.5)
+                   dynamic_ncols=True, mininterval=0.5, delay=0.5, disable=None)
     try:
         summary = compute_contacts(args.trajectory, args.output, params, format=args.format,
                                    topology=args.topology, frames=args.frames,
                                    resume=not args.no_resume, overwrite=args.force,
                                    workers=args.workers, scheduler=args.scheduler,
-                                   progress=bar, on_resume=on_resume)
+                                   progress=bar, on_resume=on_resume,
+                                   commit_seconds=args.commit_seconds,
+                                   should_stop=lambda: bool(stop))
     except KeyError as exc:
         raise CLIError(exc.args[0] if exc.args else str(exc)) from None
     except KeyboardInterrupt:
@@ -151,7 +164,8 @@ def run(args) -> int:
               f"{args.output}.partial; run the same command again to resume", file=sys.stderr)
         raise
     finally:
-        signal.signal(signal.SIGTERM, old_term)
+        for sig, handler in old_handlers.items():
+            signal.signal(sig, handler)
         if bar is not None:
             bar.close()
     if not args.quiet:

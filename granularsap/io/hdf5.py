@@ -33,13 +33,17 @@ HDF5, readable with h5py or any HDF5 tool, no granularsap needed)::
 
 Frame 0 of a file has no births or deaths (there is no previous frame).
 
-Interruption safety: the file is written as ``OUT.h5.partial`` with
-``complete = 0``; frames are committed in batches (about once a second):
-the datasets are extended and flushed first, then ``n_frames`` is raised and
-the file flushed again.  Only when every frame is in is
-``complete`` set to 1, the file closed and atomically renamed to ``OUT.h5``.
-So ``OUT.h5`` either does not exist or is complete; a ``.partial`` file is
-resumed from its last complete frame (rows past ``n_frames`` are discarded).
+Interruption safety: nothing is written under the name ``OUT.h5`` until the
+run is over.  While it runs, finished frames are committed (about once a
+second) as immutable segment files ``OUT.h5.partial/seg-NNNNNN.h5``, each
+written under a temporary name and renamed atomically, next to ``run.json``
+(the parameters).  A kill, a crash or Ctrl-C loses at most the frames since
+the last commit and never damages committed ones; running the same command
+again resumes after the last committed frame.  At the end the segments are
+assembled into ``OUT.h5.tmp``, ``complete`` is set to 1 last, and the file is
+renamed to ``OUT.h5``.  So ``OUT.h5`` either does not exist or is complete.
+(HDF5 itself cannot survive a kill in the middle of rewriting a compressed
+chunk, which is why a growing HDF5 file is not used for this.)
 """
 
 from __future__ import annotations
@@ -47,6 +51,7 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import shutil
 import time
 from dataclasses import dataclass
 
@@ -123,13 +128,88 @@ def pair_difference(a, b):
     return a[~np.isin(va, vb)]
 
 
+def _block_from_frames(batch, *, distances, clumps):
+    """Arrays of the schema (offsets local, from 0) for a list of queued frames."""
+    block = {
+        "frames/index": np.array([r.index for r, *_ in batch], dtype=np.int64),
+        "frames/step": np.array([-1 if r.step is None else r.step for r, *_ in batch],
+                                dtype=np.int64),
+        "frames/time": np.array([np.nan if r.time is None else r.time for r, *_ in batch],
+                                dtype=np.float64),
+        "frames/n_particles": np.array([r.n_particles for r, *_ in batch], dtype=np.int64),
+        "frames/cell": np.array([r.cell for r, *_ in batch], dtype=np.float64).reshape(-1, 3, 3),
+        "frames/pbc": np.array([r.pbc for r, *_ in batch], dtype=bool).reshape(-1, 3),
+        "frames/n_contacts": np.array([len(p) for _, p, _, _ in batch], dtype=np.int64),
+        "frames/n_born": np.array([len(b) for _, _, b, _ in batch], dtype=np.int64),
+        "frames/n_died": np.array([len(d) for _, _, _, d in batch], dtype=np.int64),
+    }
+
+    def stack(parts, name, off):
+        block[name] = (np.concatenate(parts) if parts
+                       else np.empty((0, 2), np.int64)).astype(np.int64).reshape(-1, 2)
+        block[f"frames/{off}"] = np.concatenate([[0], np.cumsum([len(x) for x in parts],
+                                                                dtype=np.int64)])
+
+    stack([p for _, p, _, _ in batch], "contacts/pairs", "contact_offset")
+    stack([b for _, _, b, _ in batch], "events/born", "born_offset")
+    stack([d for _, _, _, d in batch], "events/died", "died_offset")
+    if clumps:
+        stack([np.asarray(r.clump_pairs, dtype=np.int64).reshape(-1, 2) for r, *_ in batch],
+              "clumps/pairs", "clump_offset")
+    if distances:
+        block["contacts/distances"] = np.concatenate(
+            [np.asarray(r.distances, dtype=np.float64).ravel() for r, *_ in batch]
+            or [np.empty(0)])
+    return block
+
+
+def _concat_blocks(blocks):
+    """Concatenate schema blocks, re-basing the offsets."""
+    out = {}
+    for name in blocks[0]:
+        if name.endswith("_offset"):
+            parts, base = [np.zeros(1, np.int64)], 0
+            for b in blocks:
+                parts.append(b[name][1:] + base)
+                base += int(b[name][-1])
+            out[name] = np.concatenate(parts)
+        else:
+            out[name] = np.concatenate([b[name] for b in blocks])
+    return out
+
+
+def _write_block(f, block):
+    for name, data in block.items():
+        rows = max(1, min(len(data), 65536 if data.ndim == 1 else 32768))
+        f.create_dataset(name, data=data, maxshape=(None, *data.shape[1:]),
+                         chunks=(rows, *data.shape[1:]), **_COMPRESSION)
+
+
+def _read_block(f):
+    out = {}
+
+    def visit(name, obj):
+        if hasattr(obj, "shape"):
+            out[name] = obj[()]
+
+    f.visititems(visit)
+    return out
+
+
 class ContactsWriter:
-    """Append frames to a contacts file; see the module docstring for the schema.
+    """Write frames to a contacts file; see the module docstring for the schema.
+
+    Frames are queued and committed in batches: each commit writes one
+    immutable segment file ``OUT.h5.partial/seg-NNNNNN.h5`` under a temporary
+    name and renames it atomically, so a killed run loses at most the frames
+    queued since the last commit, and never damages what was committed.
+    :meth:`finish` assembles the segments into ``OUT.h5.tmp``, marks it
+    complete and renames it to ``OUT.h5``.
 
     Parameters
     ----------
     path : str or os.PathLike
-        Final name of the file (written as ``path + '.partial'`` until complete).
+        Final name of the file.
     parameters : dict
         JSON-serialisable description of the run; a resumed run must match it.
     distances : bool
@@ -137,18 +217,18 @@ class ContactsWriter:
     clumps : bool
         Store clump pairs too.
     resume : bool
-        If a ``.partial`` file with the same parameters exists, continue it.
-        Otherwise it is replaced.
+        If ``path + '.partial'`` holds segments of a run with the same
+        parameters, continue after its last committed frame; otherwise start over.
     commit_seconds : float
-        Queued frames are written and made durable (``n_frames`` raised,
-        file flushed) at least this often; 0 commits every frame.  An
-        interruption loses at most the frames queued since the last commit.
+        Commit queued frames at least this often (0: after every frame).
 
     Attributes
     ----------
     n_frames : int
-        Frames in the file so far (after a resume, those already there).
+        Frames committed or queued so far (after a resume, those already there).
     resumed : bool
+    discarded_reason : str or None
+        Why an existing partial run was not resumed.
     """
 
     def __init__(self, path, parameters, *, distances=False, clumps=False, resume=True,
@@ -159,118 +239,66 @@ class ContactsWriter:
         self.parameters = json.loads(json.dumps(parameters))
         self.distances = bool(distances)
         self.clumps = bool(clumps)
+        self.commit_seconds = float(commit_seconds)
         self.resumed = False
         self.discarded_reason = None
         self._prev = None
-        self.file = None
-        self.commit_seconds = float(commit_seconds)
         self._buffer = []
         self._buffered_pairs = 0
         self._last_commit = time.monotonic()
+        self._segments = []   # (file name, frame indices)
+        self.n_frames = 0
+        self._timing = {}
         if resume and os.path.exists(self.tmp):
             self._try_resume()
-        if self.file is None:
+        if not self.resumed:
             self._create()
 
-    # ---- setup
-    def _create(self):
-        h5 = self.h5py
+    def _run_info(self):
         from .._version import __version__
 
-        f = h5.File(self.tmp, "w")
-        self.file = f
-        f.attrs["format"] = FORMAT_NAME
-        f.attrs["schema_version"] = SCHEMA_VERSION
-        f.attrs["granularsap_version"] = __version__
-        f.attrs["complete"] = np.int8(0)
-        f.attrs["n_frames"] = np.int64(0)
-        f.attrs["parameters"] = json.dumps(self.parameters, sort_keys=True)
-        f.attrs["pair_index"] = "id"
-        f.attrs["created"] = _now()
-        f.attrs["timing"] = json.dumps({})
-        g = f.create_group("frames")
-        for name, (dtype, shape, _) in _PER_FRAME.items():
-            g.create_dataset(name, shape=(0, *shape), maxshape=(None, *shape), dtype=dtype,
-                             chunks=(1024, *shape), **_COMPRESSION)
-        offsets = ["contact_offset", "born_offset", "died_offset"]
-        if self.clumps:
-            offsets.append("clump_offset")
-        for name in offsets:
-            g.create_dataset(name, data=np.zeros(1, np.int64), maxshape=(None,), chunks=(1024,),
-                             **_COMPRESSION)
-        pair_groups = [("contacts", "pairs"), ("events", "born"), ("events", "died")]
-        if self.clumps:
-            pair_groups.append(("clumps", "pairs"))
-        for grp, name in pair_groups:
-            f.require_group(grp).create_dataset(name, shape=(0, 2), maxshape=(None, 2),
-                                                dtype=np.int64, chunks=(32768, 2), **_COMPRESSION)
-        if self.distances:
-            f["contacts"].create_dataset("distances", shape=(0,), maxshape=(None,),
-                                         dtype=np.float64, chunks=(65536,), **_COMPRESSION)
-        f.flush()
-        self.n_frames = 0
+        return {"format": FORMAT_NAME, "schema_version": SCHEMA_VERSION,
+                "granularsap_version": __version__, "parameters": self.parameters,
+                "distances": self.distances, "clumps": self.clumps, "created": _now()}
+
+    def _create(self):
+        if os.path.isdir(self.tmp):
+            shutil.rmtree(self.tmp)
+        elif os.path.exists(self.tmp):
+            os.remove(self.tmp)
+        os.makedirs(self.tmp)
+        self.info = self._run_info()
+        _atomic_write_text(os.path.join(self.tmp, "run.json"), json.dumps(self.info, indent=1))
 
     def _try_resume(self):
-        h5 = self.h5py
         try:
-            f = h5.File(self.tmp, "r+")
-        except OSError as exc:  # an unreadable partial file: start over
-            self.discarded_reason = f"unreadable partial file ({exc})"
+            with open(os.path.join(self.tmp, "run.json")) as fh:
+                info = json.load(fh)
+        except (OSError, ValueError) as exc:
+            self.discarded_reason = f"unreadable partial run ({exc})"
             return
-        try:
-            old = json.loads(f.attrs.get("parameters", "null"))
-            ok = (f.attrs.get("format") == FORMAT_NAME
-                  and int(f.attrs.get("schema_version", -1)) == SCHEMA_VERSION
-                  and old == self.parameters
-                  and ("distances" in f["contacts"]) == self.distances
-                  and ("clumps" in f) == self.clumps)
-        except (KeyError, ValueError, OSError) as exc:
-            ok = False
-            self.discarded_reason = f"damaged partial file ({exc})"
-        if not ok:
-            f.close()
-            self.discarded_reason = self.discarded_reason or "partial file from a different run"
+        mine = self._run_info()
+        same = all(info.get(k) == mine[k] for k in ("format", "schema_version", "parameters",
+                                                     "distances", "clumps"))
+        if not same:
+            self.discarded_reason = "partial run with different parameters"
             return
-        n = int(f.attrs["n_frames"])
-        g = f["frames"]
-        for name in _PER_FRAME:
-            g[name].resize(n, axis=0)
-        for off, grp, name in self._offset_table():
-            g[off].resize(n + 1, axis=0)
-            f[grp][name].resize(int(g[off][n]), axis=0)
-        if self.distances:
-            f["contacts/distances"].resize(int(g["contact_offset"][n]), axis=0)
-        f.flush()
-        self.file = f
-        self.n_frames = n
+        segments, last = _list_segments(self.tmp, self.h5py)
+        self.info = info
+        self._segments = segments
+        self.n_frames = sum(len(idx) for _, idx in segments)
+        self._prev = last
         self.resumed = True
-        if n:
-            lo, hi = g["contact_offset"][n - 1:n + 1]  # previous frame, for births/deaths
-            self._prev = f["contacts/pairs"][lo:hi]
-
-    def _offset_table(self):
-        table = [("contact_offset", "contacts", "pairs"), ("born_offset", "events", "born"),
-                 ("died_offset", "events", "died")]
-        if self.clumps:
-            table.append(("clump_offset", "clumps", "pairs"))
-        return table
 
     @property
     def done_indices(self):
-        """Trajectory frame numbers already in the file."""
-        return self.file["frames/index"][: self.n_frames]
-
-    # ---- writing
-    @staticmethod
-    def _extend(ds, arr):
-        n = ds.shape[0]
-        ds.resize(n + len(arr), axis=0)
-        if len(arr):
-            ds[n:] = arr
-        return n + len(arr)
+        """Trajectory frame numbers already committed."""
+        if not self._segments:
+            return np.empty(0, np.int64)
+        return np.concatenate([idx for _, idx in self._segments])
 
     def append(self, res: FrameResult):
-        """Queue one frame; frames are committed in batches (see ``commit_seconds``)."""
+        """Queue one frame (births/deaths against the previous one); commit if it is time."""
         pairs = np.ascontiguousarray(res.pairs, dtype=np.int64).reshape(-1, 2)
         if self._prev is None:
             born = died = np.empty((0, 2), np.int64)
@@ -280,94 +308,136 @@ class ContactsWriter:
         self._prev = pairs
         self._buffer.append((res, pairs, born, died))
         self._buffered_pairs += len(pairs)
+        self.n_frames += 1
         if (time.monotonic() - self._last_commit >= self.commit_seconds
                 or self._buffered_pairs >= 4_000_000):
             self.commit()
 
     def commit(self):
-        """Write the queued frames, then raise ``n_frames`` and flush.
-
-        Data first, the ``n_frames`` attribute last: rows past ``n_frames``
-        (from a commit cut short) are ignored and dropped on resume.
-        """
+        """Write the queued frames as one segment: temporary name, then atomic rename."""
         self._last_commit = time.monotonic()
         if not self._buffer:
             return
-        f = self.file
-        g = f["frames"]
-        n = self.n_frames
-        batch = self._buffer
-        m = len(batch)
-        cols = {
-            "index": [r.index for r, *_ in batch],
-            "step": [-1 if r.step is None else r.step for r, *_ in batch],
-            "time": [np.nan if r.time is None else r.time for r, *_ in batch],
-            "n_particles": [r.n_particles for r, *_ in batch],
-            "cell": [r.cell for r, *_ in batch],
-            "pbc": [r.pbc for r, *_ in batch],
-            "n_contacts": [len(p) for _, p, _, _ in batch],
-            "n_born": [len(b) for _, _, b, _ in batch],
-            "n_died": [len(d) for _, _, _, d in batch],
-        }
-        for name, values in cols.items():
-            ds = g[name]
-            ds.resize(n + m, axis=0)
-            ds[n:n + m] = np.asarray(values, dtype=ds.dtype)
-        blocks = {"contacts": 1, "born": 2, "died": 3}
-        for off, grp, name in self._offset_table():
-            if grp == "clumps":
-                parts = [np.asarray(r.clump_pairs, dtype=np.int64).reshape(-1, 2)
-                         for r, *_ in batch]
-            else:
-                k = blocks[grp if grp != "events" else name]
-                parts = [item[k] for item in batch]
-            ds = f[grp][name]
-            base = ds.shape[0]
-            ends = base + np.cumsum([len(p) for p in parts])
-            self._extend(ds, np.concatenate(parts) if parts else np.empty((0, 2), np.int64))
-            g[off].resize(n + m + 1, axis=0)
-            g[off][n + 1:n + m + 1] = ends
-        if self.distances:
-            self._extend(f["contacts/distances"],
-                         np.concatenate([np.asarray(r.distances, dtype=np.float64).ravel()
-                                         for r, *_ in batch]))
-        f.flush()
-        f.attrs["n_frames"] = np.int64(n + m)  # these frames are trusted from here on
-        f.flush()
-        self.n_frames = n + m
+        block = _block_from_frames(self._buffer, distances=self.distances, clumps=self.clumps)
+        name = f"seg-{len(self._segments):06d}.h5"
+        final = os.path.join(self.tmp, name)
+        tmp = final + ".tmp"
+        with self.h5py.File(tmp, "w") as f:
+            f.attrs["format"] = FORMAT_NAME + ".segment"  # never mistaken for a contacts file
+            f.attrs["complete"] = np.int8(0)
+            f.attrs["n_frames"] = np.int64(len(self._buffer))
+            _write_block(f, block)
+        _fsync_path(tmp)
+        os.replace(tmp, final)
+        self._segments.append((name, block["frames/index"]))
         self._buffer = []
         self._buffered_pairs = 0
 
     def set_timing(self, timing: dict):
-        self.file.attrs["timing"] = json.dumps(timing, sort_keys=True)
+        self._timing = dict(timing)
 
     def finish(self, timing=None):
-        """Mark the file complete, close it and rename it to its final name."""
-        self.commit()
+        """Assemble the segments into the final file, mark it complete, rename it."""
         if timing is not None:
             self.set_timing(timing)
-        self.file.attrs["finished"] = _now()
-        self.file.attrs["complete"] = np.int8(1)
-        self.file.flush()
-        self.file.close()
-        self.file = None
-        os.replace(self.tmp, self.path)
+        self.commit()
+        blocks = []
+        for name, _ in self._segments:
+            with self.h5py.File(os.path.join(self.tmp, name), "r") as f:
+                blocks.append(_read_block(f))
+        tmp = self.path + ".tmp"
+        with self.h5py.File(tmp, "w") as f:
+            _write_header(f, self.info, self.n_frames, complete=False)
+            _write_block(f, _concat_blocks(blocks) if blocks else
+                         _block_from_frames([], distances=self.distances, clumps=self.clumps))
+            f.attrs["timing"] = json.dumps(self._timing, sort_keys=True)
+            f.attrs["finished"] = _now()
+            f.flush()
+            f.attrs["complete"] = np.int8(1)  # written last
+        _fsync_path(tmp)
+        os.replace(tmp, self.path)
+        shutil.rmtree(self.tmp, ignore_errors=True)
 
     def close(self):
-        """Close without marking complete (the ``.partial`` file stays resumable)."""
-        if self.file is not None:
-            try:
-                self.commit()
-                self.file.flush()
-            finally:
-                self.file.close()
-                self.file = None
+        """Commit what is queued (the partial run stays resumable; empty ones are removed)."""
+        self.commit()
+        if not self._segments and os.path.isdir(self.tmp):
+            shutil.rmtree(self.tmp, ignore_errors=True)
 
     def __enter__(self):
         return self
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _write_header(f, info, n_frames, *, complete):
+    f.attrs["format"] = FORMAT_NAME
+    f.attrs["schema_version"] = SCHEMA_VERSION
+    f.attrs["granularsap_version"] = info["granularsap_version"]
+    f.attrs["complete"] = np.int8(1 if complete else 0)
+    f.attrs["n_frames"] = np.int64(n_frames)
+    f.attrs["parameters"] = json.dumps(info["parameters"], sort_keys=True)
+    f.attrs["pair_index"] = "id"
+    f.attrs["created"] = info["created"]
+    f.attrs["timing"] = json.dumps({})
+
+
+def _atomic_write_text(path, text):
+    tmp = path + ".tmp"
+    with open(tmp, "w") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def _fsync_path(path):
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _list_segments(directory, h5py):
+    """Committed segments in order (stray temporaries removed) and the last frame's pairs."""
+    names = sorted(n for n in os.listdir(directory) if n.startswith("seg-"))
+    segments, last = [], None
+    for n in names:
+        if not n.endswith(".h5"):
+            os.remove(os.path.join(directory, n))  # a commit cut short
+            continue
+        if n != f"seg-{len(segments):06d}.h5":
+            break
+        with h5py.File(os.path.join(directory, n), "r") as f:
+            idx = f["frames/index"][()]
+            off = f["frames/contact_offset"][-2:]
+            if len(idx):
+                last = f["contacts/pairs"][off[0]:off[1]]
+        segments.append((n, idx))
+    return segments, last
+
+
+def _assemble_in_memory(directory, h5py):
+    """A read-only in-memory contacts file of a partial run (for ContactsFile)."""
+    with open(os.path.join(directory, "run.json")) as fh:
+        info = json.load(fh)
+    names = sorted(n for n in os.listdir(directory)
+                   if n.startswith("seg-") and n.endswith(".h5"))
+    blocks = []
+    for n in names:
+        with h5py.File(os.path.join(directory, n), "r") as f:
+            blocks.append(_read_block(f))
+    f = h5py.File(f"partial-{id(blocks)}.h5", "w", driver="core", backing_store=False)
+    n_frames = sum(len(b["frames/index"]) for b in blocks)
+    _write_header(f, info, n_frames, complete=False)
+    if blocks:
+        _write_block(f, _concat_blocks(blocks))
+    else:
+        _write_block(f, _block_from_frames([], distances=info["distances"],
+                                           clumps=info["clumps"]))
+    return f
 
 
 class ContactsFile:
@@ -397,7 +467,13 @@ class ContactsFile:
                     "interrupted; rerun the same command to resume it")
             path = partial_path(path)
         self.path = path
-        self.file = h5.File(path, "r")
+        if os.path.isdir(path):  # an interrupted run: its committed segments
+            if not allow_incomplete:
+                raise IncompleteFileError(f"{path} is an interrupted run: rerun the same "
+                                          "command to resume it")
+            self.file = _assemble_in_memory(path, h5)
+        else:
+            self.file = h5.File(path, "r")
         attrs = self.file.attrs
         if attrs.get("format") != FORMAT_NAME:
             self.file.close()

@@ -233,7 +233,7 @@ class _DaskRunner:
 
 def compute_contacts(trajectory, output, params: ContactParams, *, format=None, topology=None,
                      frames=None, resume=True, overwrite=False, workers=None, scheduler=None,
-                     progress=None, on_resume=None):
+                     progress=None, on_resume=None, commit_seconds=1.0, should_stop=None):
     """Write the contacts of every selected frame of ``trajectory`` to ``output``.
 
     Parameters
@@ -260,6 +260,11 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
     on_resume : callable, optional
         Called with ``(n_frames_already_done, reason_or_None)`` after the
         partial file is examined.
+    commit_seconds : float
+        Make finished frames durable at least this often (0: after every frame).
+    should_stop : callable, optional
+        Checked after every frame written; when it returns True the run stops
+        with ``KeyboardInterrupt`` after committing what it has (resumable).
 
     Returns
     -------
@@ -287,7 +292,8 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
         **params.describe(),
     }
     writer = ContactsWriter(output, described, distances=params.distances,
-                            clumps=params.clumps, resume=resume)
+                            clumps=params.clumps, resume=resume,
+                            commit_seconds=commit_seconds)
     done = writer.n_frames
     if on_resume is not None:
         on_resume(done, writer.discarded_reason)
@@ -333,6 +339,8 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
             n_new += 1
             if progress is not None:
                 progress.update(1)
+            if should_stop is not None and should_stop():
+                raise KeyboardInterrupt
         timing["wall"] = time.perf_counter() - t_start
         timing["frames_this_run"] = n_new
         t0 = time.perf_counter()

@@ -1,0 +1,226 @@
+"""``granularsap contacts`` and ``granularsap info`` end to end, and interruption."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+import granularsap
+from granularsap.cli import main
+from granularsap.io import ContactsFile, IncompleteFileError, iter_frames
+
+from ._iohelpers import lammps_cell, random_frames, write_dump
+from .test_hdf5 import assert_same_contacts_file
+
+DATA = os.path.join(os.path.dirname(__file__), os.pardir, "data")
+
+
+def data_file(name):
+    path = os.path.join(DATA, name)
+    if not os.path.exists(path):
+        pytest.skip(f"data/{name} not generated")
+    return path
+
+
+def id_pairs(frame, pairs):
+    ids = np.sort(frame.ids[np.asarray(pairs).reshape(-1, 2)], axis=1)
+    return ids[np.lexsort((ids[:, 1], ids[:, 0]))]
+
+
+class TestBundledData:
+    def test_pour_spheres_equal_sphere_contacts(self, tmp_path, capsys):
+        dump = data_file("pour.dump")
+        out = tmp_path / "pour.h5"
+        assert main(["contacts", dump, "-o", str(out), "--frames", "0:21:4", "-q"]) == 0
+        frames = list(iter_frames(dump, frames=slice(0, 21, 4)))
+        with ContactsFile(out) as cf:
+            assert cf.n_frames == len(frames) == 6
+            total = 0
+            for k, fr in enumerate(frames):
+                want = granularsap.sphere_contacts(fr.positions, fr.radius, box=None)
+                np.testing.assert_array_equal(cf.pairs(k), id_pairs(fr, want))
+                total += len(want)
+            assert total > 0
+            np.testing.assert_array_equal(cf.step, [f.step for f in frames])
+        assert main(["info", str(out), "--json"]) == 0
+        s = json.loads(capsys.readouterr().out)
+        assert s["complete"] and s["frames"] == 6 and s["n_particles"] == [2000] * 6
+        assert sum(s["n_contacts"]) == total
+        np.testing.assert_allclose(s["coordination"], 2 * np.array(s["n_contacts"]) / 2000)
+
+    def test_lj_cutoff_with_distances_equal_neighbor_pairs(self, tmp_path):
+        dump = data_file("lj.dump")
+        out = tmp_path / "lj.h5"
+        assert main(["contacts", dump, "-o", str(out), "--cutoff", "2.5", "--frames", "0:3",
+                     "--distances", "-q"]) == 0
+        with ContactsFile(out) as cf:
+            for k, fr in enumerate(iter_frames(dump, frames=slice(0, 3))):
+                pairs, dist = granularsap.neighbor_pairs(fr.positions, 2.5, box=fr.box)
+                ids = np.sort(fr.ids[pairs], axis=1)
+                order = np.lexsort((ids[:, 1], ids[:, 0]))
+                np.testing.assert_array_equal(cf.pairs(k), ids[order])
+                np.testing.assert_allclose(cf.distances(k), dist[order], rtol=1e-12)
+
+    def test_clumps_equal_clump_contacts(self, tmp_path):
+        dump = data_file("clumps.dump")
+        out = tmp_path / "cl.h5"
+        assert main(["contacts", dump, "-o", str(out), "--clumps", "--frames", "10:21:10",
+                     "-q"]) == 0
+        with ContactsFile(out) as cf:
+            for k, fr in enumerate(iter_frames(dump, frames=slice(10, 21, 10))):
+                sp, cp = granularsap.clump_contacts(fr.positions, fr.radius, fr.molecule)
+                np.testing.assert_array_equal(cf.pairs(k), id_pairs(fr, sp))
+                cp = np.sort(cp, axis=1)
+                np.testing.assert_array_equal(cf.clump_pairs(k),
+                                              cp[np.lexsort((cp[:, 1], cp[:, 0]))])
+
+
+class TestInfo:
+    def test_text_summary_and_plot(self, tmp_path, capsys):
+        dump = tmp_path / "s.dump"
+        write_dump(dump, random_frames(50, 4, cell=lammps_cell(5, 5, 5), seed=2),
+                   columns=("id", "type", "diameter", "x", "y", "z"))
+        out = tmp_path / "s.h5"
+        assert main(["contacts", str(dump), "-o", str(out), "--skin", "0.1"]) == 0
+        err = capsys.readouterr()
+        assert f"wrote {out}: 4 frames (4 this run" in err.out
+        assert "time share: read" in err.out
+        png = tmp_path / "s.png"
+        assert main(["info", str(out), "--plot", str(png)]) == 0
+        text = capsys.readouterr().out
+        with ContactsFile(out) as cf:
+            n = cf.n_contacts
+            born, died = int(cf.n_born.sum()), int(cf.n_died.sum())
+        assert "status:        complete" in text
+        assert "frames:        4" in text
+        assert f"contacts/frame: min {n.min()}, mean {n.mean():.4g}, max {n.max()}" in text
+        assert f"coordination:  min {2 * n.min() / 50:g}" in text
+        assert f"births/deaths: {born} born, {died} died over 3 transitions" in text
+        assert "skin 0.1" in text
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+class TestErrors:
+    def test_one_line_errors_and_exit_codes(self, tmp_path, capsys):
+        dump = tmp_path / "e.dump"
+        write_dump(dump, random_frames(10, 2, cell=lammps_cell(5, 5, 5)),
+                   columns=("id", "x", "y", "z"))
+        out = str(tmp_path / "e.h5")
+        cases = [
+            (["contacts", str(tmp_path / "missing.dump"), "-o", out], "does not exist"),
+            (["contacts", str(dump), "-o", out], "no radius or diameter column"),
+            (["contacts", str(dump), "-o", out, "--cutoff", "1", "--clumps"],
+             "cutoff mode takes no skin and no clumps"),
+            (["contacts", str(dump), "-o", out, "--radius-column", "q"],
+             "no per-particle column 'q'"),
+            (["info", str(tmp_path / "none.h5")], "does not exist"),
+        ]
+        for argv, message in cases:
+            assert main(argv) == 2, argv
+            err = capsys.readouterr().err.strip().splitlines()
+            assert len(err) == 1 and message in err[0], err
+        assert main(["contacts", str(dump), "-o", out, "--cutoff", "1", "-q"]) == 0
+        assert main(["contacts", str(dump), "-o", out, "--cutoff", "1", "-q"]) == 2
+        assert "already exists; use --force" in capsys.readouterr().err
+        assert main(["contacts", str(dump), "-o", out, "--cutoff", "1", "-q", "-f"]) == 0
+
+    @pytest.mark.parametrize("frames", ["a:b", "-1:", "0:5:0", "1:2:3:4"])
+    def test_bad_frames_is_a_usage_error(self, tmp_path, frames, capsys):
+        with pytest.raises(SystemExit) as exc:
+            main(["contacts", "x.dump", "-o", str(tmp_path / "x.h5"), "--frames", frames])
+        assert exc.value.code == 2
+        assert "--frames" in capsys.readouterr().err
+
+    def test_truncated_dump_keeps_good_frames(self, tmp_path, capsys):
+        dump = tmp_path / "t.dump"
+        write_dump(dump, random_frames(20, 3, cell=lammps_cell(5, 5, 5)),
+                   columns=("id", "radius", "x", "y", "z"))
+        lines = dump.read_text().splitlines(keepends=True)
+        dump.write_text("".join(lines[:-3]))
+        out = tmp_path / "t.h5"
+        assert main(["contacts", str(dump), "-o", str(out), "-q"]) == 2
+        assert "frame 2, line" in capsys.readouterr().err
+        assert not out.exists()
+        with ContactsFile(out, allow_incomplete=True) as cf:
+            assert cf.n_frames == 2 and not cf.complete
+
+
+def _frames_done(partial):
+    try:
+        return sum(n.endswith(".h5") for n in os.listdir(partial))
+    except OSError:
+        return -1
+
+
+@pytest.fixture(scope="module")
+def slow_dump(tmp_path_factory):
+    path = tmp_path_factory.mktemp("slow") / "slow.dump"
+    write_dump(path, random_frames(1500, 40, cell=lammps_cell(30, 30, 30), seed=3,
+                                   radius=(0.4, 0.9)),
+               columns=("id", "type", "radius", "x", "y", "z"))
+    return path
+
+
+class TestInterruption:
+    @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["kill", "term"])
+    def test_killed_run_is_incomplete_then_resumes_to_same_file(self, tmp_path, slow_dump,
+                                                                sig, capsys):
+        out = tmp_path / "k.h5"
+        partial = tmp_path / "k.h5.partial"
+        cmd = [sys.executable, "-m", "granularsap", "contacts", str(slow_dump), "-o", str(out),
+               "--commit-seconds", "0", "-q"]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 120
+        while _frames_done(partial) < 3:
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+        if sig == signal.SIGTERM:
+            assert proc.returncode == 130
+            assert "run the same command again to resume" in err
+        else:
+            assert proc.returncode == -signal.SIGKILL
+        assert not out.exists() and partial.exists()
+        with pytest.raises(IncompleteFileError):
+            ContactsFile(out)
+        with ContactsFile(out, allow_incomplete=True) as cf:
+            done = cf.n_frames
+        assert 3 <= done < 40
+        assert main(["info", str(out)]) == 1
+        assert "INCOMPLETE" in capsys.readouterr().out
+        # resume (same command, in process), then compare with an uninterrupted run
+        assert main(["contacts", str(slow_dump), "-o", str(out)]) == 0
+        assert f"resuming {out}.partial after {done} complete frames" in capsys.readouterr().err
+        assert not partial.exists()
+        ref = tmp_path / "ref.h5"
+        assert main(["contacts", str(slow_dump), "-o", str(ref), "-q"]) == 0
+        assert_same_contacts_file(out, ref)
+
+    def test_no_resume_starts_over(self, tmp_path, capsys):
+        from granularsap.io import ContactParams, ContactsWriter, frame_contacts
+
+        out = tmp_path / "n.h5"
+        small = tmp_path / "small.dump"
+        write_dump(small, random_frames(30, 3, cell=lammps_cell(6, 6, 6), seed=4),
+                   columns=("id", "radius", "x", "y", "z"))
+        assert main(["contacts", str(small), "-o", str(out), "-q"]) == 0
+        with h5py.File(out, "r") as f:
+            params = json.loads(f.attrs["parameters"])
+        os.remove(out)
+        w = ContactsWriter(out, params, commit_seconds=0)  # a run killed after one frame
+        w.append(frame_contacts(next(iter_frames(small)), ContactParams()))
+        w.close()
+        assert main(["contacts", str(small), "-o", str(out), "--no-resume"]) == 0
+        assert "resuming" not in capsys.readouterr().err
+        with ContactsFile(out) as cf:
+            assert cf.n_frames == 3
