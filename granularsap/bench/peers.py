@@ -8,9 +8,10 @@ Libraries that take a single cutoff are asked for ``Workload.search_radius()``
 overlapping boxes for boxes) and their candidates are then filtered with the
 exact test (``d <= r_i + r_j`` or the closed-box test); that filter is part
 of the timed run, because it is part of what their users run.  Libraries that
-compute in float32 (MDAnalysis, freud) get a slightly wider radius and the
-filter uses float64 distances, so that touching contacts in real DEM data are
-decided identically for every peer.
+compute in float32 (MDAnalysis, freud) get a slightly wider radius (also for
+plain cutoff searches) and the filter uses float64 distances, so that pairs at
+the cutoff and touching contacts in real DEM data are decided identically for
+every peer rather than by float32 rounding.
 
 A peer that is not installed reports why in :meth:`Peer.missing`; a peer that
 cannot handle a workload (a triclinic cell, say) reports why in
@@ -53,12 +54,25 @@ def _half(i, j, d=None):
 
 
 def pair_distances(positions, pairs, box):
-    """Minimum-image distances of ``pairs`` in an orthorhombic cell (or open)."""
+    """Minimum-image float64 distances of ``pairs`` (open, orthorhombic or triclinic)."""
     delta = positions[pairs[:, 1]] - positions[pairs[:, 0]]
-    if box is not None:
-        lengths = np.asarray(box[:3], dtype=np.float64)
-        delta -= lengths * np.round(delta / lengths)
-    return np.sqrt(np.einsum("ij,ij->i", delta, delta))
+    if box is None:
+        return np.sqrt(np.einsum("ij,ij->i", delta, delta))
+    box = np.asarray(box, dtype=np.float64)
+    if np.allclose(box[3:], 90.0):
+        delta -= box[:3] * np.round(delta / box[:3])
+        return np.sqrt(np.einsum("ij,ij->i", delta, delta))
+    cell = _cell_matrix(box)
+    frac = delta @ np.linalg.inv(cell)
+    delta = (frac - np.round(frac)) @ cell
+    # rounding in fractional coordinates can miss the nearest image of a skewed
+    # cell: take the shortest of the 27 neighbouring images
+    best = np.einsum("ij,ij->i", delta, delta)
+    for shift in np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1])).reshape(3, -1).T:
+        if shift.any():
+            d = delta + shift @ cell
+            best = np.minimum(best, np.einsum("ij,ij->i", d, d))
+    return np.sqrt(best)
 
 
 def exact_filter(workload, frame, pairs, distances=None):
@@ -138,10 +152,10 @@ class CutoffPeer(Peer):
 
     #: the library tests d < r instead of d <= r
     strict = False
-    #: the library computes in float32: for contacts and boxes its candidate
-    #: radius is widened by FLOAT32_WIDEN and the exact test uses float64
-    #: distances from the input positions, so touching contacts are decided
-    #: the same way for every peer (a cutoff search keeps the library's answer)
+    #: the library computes in float32: its radius is widened by FLOAT32_WIDEN
+    #: and the exact test uses float64 distances from the input positions, so
+    #: pairs at the cutoff (or touching contacts) are decided the same way by
+    #: every peer instead of by float32 rounding
     float32 = False
 
     def search(self, positions, radius, box):
@@ -151,14 +165,16 @@ class CutoffPeer(Peer):
     def run(self, frame):
         wl = self.workload
         radius = wl.search_radius()
-        if wl.kind != "cutoff" or self.strict:
-            radius *= 1.0 + (FLOAT32_WIDEN if self.float32 and wl.kind != "cutoff" else _WIDEN)
+        if self.float32:
+            radius *= 1.0 + FLOAT32_WIDEN
+        elif wl.kind != "cutoff" or self.strict:
+            radius *= 1.0 + _WIDEN
         box = wl.box if wl.kind != "boxes" else None
         pairs, dist = self.search(wl.frames[frame], radius, box)
+        if self.float32:
+            return exact_filter(wl, frame, pairs, None)
         if wl.kind == "cutoff" and not self.strict:
             return pairs
-        if self.float32 and wl.kind != "cutoff":
-            dist = None
         return exact_filter(wl, frame, pairs, dist)
 
 
