@@ -1,0 +1,107 @@
+"""granularsap.mda_analysis.Contacts: an MDAnalysis analysis, equal on every backend."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import granularsap
+
+mda = pytest.importorskip("MDAnalysis")
+from MDAnalysis.coordinates.memory import MemoryReader  # noqa: E402
+from MDAnalysis.lib.distances import self_capped_distance  # noqa: E402
+
+from granularsap.mda_analysis import Contacts  # noqa: E402
+
+N_ATOMS, N_FRAMES = 300, 6
+
+
+@pytest.fixture(scope="module")
+def universe():
+    rng = np.random.default_rng(5)
+    coords = rng.uniform(0, 12, (N_FRAMES, N_ATOMS, 3)).astype(np.float32)
+    dims = np.tile(np.array([12, 12, 12, 90, 90, 90], np.float32), (N_FRAMES, 1))
+    dims[1::2, 3:] = [80, 95, 85]  # every other frame triclinic
+    u = mda.Universe.empty(N_ATOMS, trajectory=False)
+    u.add_TopologyAttr("radii", rng.uniform(0.3, 0.7, N_ATOMS))
+    u.load_new(coords, format=MemoryReader, dimensions=dims, dt=1.0)
+    return u
+
+
+def sorted_pairs(p):
+    p = np.sort(np.asarray(p, dtype=np.int64).reshape(-1, 2), axis=1)
+    return p[np.lexsort((p[:, 1], p[:, 0]))]
+
+
+class TestResults:
+    def test_cutoff_equals_mdanalysis(self, universe):
+        c = Contacts(universe.atoms, cutoff=1.5, return_distances=True).run()
+        assert len(c.results.pairs) == N_FRAMES
+        for k, ts in enumerate(universe.trajectory):
+            ref, _ = self_capped_distance(universe.atoms.positions, 1.5, box=ts.dimensions)
+            np.testing.assert_array_equal(c.results.pairs[k], sorted_pairs(ref))
+            pos = universe.atoms.positions.astype(np.float64)
+            want, dist = granularsap.neighbor_pairs(pos, 1.5, box=ts.dimensions)
+            order = np.lexsort((want[:, 1], want[:, 0]))
+            np.testing.assert_allclose(c.results.distances[k], dist[order], rtol=1e-12)
+        np.testing.assert_array_equal(c.results.n_contacts, [len(p) for p in c.results.pairs])
+        np.testing.assert_allclose(c.results.coordination,
+                                   2 * c.results.n_contacts / N_ATOMS)
+
+    def test_radii_and_skin_equal_sphere_contacts(self, universe):
+        ag = universe.atoms[::2]
+        c = Contacts(ag, radii="topology", skin=0.1).run(start=1, stop=6, step=2)
+        np.testing.assert_array_equal(c.frames, [1, 3, 5])
+        assert c.results.distances is None
+        for k, ts in enumerate(universe.trajectory[1:6:2]):
+            want = granularsap.sphere_contacts(ag.positions.astype(np.float64), ag.radii,
+                                               skin=0.1, box=ts.dimensions)
+            np.testing.assert_array_equal(c.results.pairs[k], sorted_pairs(want))
+
+    def test_no_pbc(self, universe):
+        c = Contacts(universe.atoms, radii=0.4, pbc=False).run(stop=1)
+        want = granularsap.sphere_contacts(universe.atoms.positions.astype(np.float64),
+                                           np.full(N_ATOMS, 0.4))
+        np.testing.assert_array_equal(c.results.pairs[0], sorted_pairs(want))
+
+
+class TestBackends:
+    def test_declared_parallelizable(self, universe):
+        c = Contacts(universe.atoms, cutoff=1.0)
+        assert c.parallelizable
+        assert set(Contacts.get_supported_backends()) == {"serial", "multiprocessing", "dask"}
+
+    @pytest.mark.parametrize("backend", ["multiprocessing", "dask"])
+    def test_identical_to_serial(self, universe, backend):
+        if backend == "dask":
+            pytest.importorskip("dask")
+        kw = {"cutoff": 1.4, "return_distances": True}
+        serial = Contacts(universe.atoms, **kw).run()
+        par = Contacts(universe.atoms, **kw).run(backend=backend, n_workers=2)
+        np.testing.assert_array_equal(par.frames, serial.frames)
+        np.testing.assert_array_equal(par.results.n_contacts, serial.results.n_contacts)
+        for a, b in zip(par.results.pairs, serial.results.pairs, strict=True):
+            np.testing.assert_array_equal(a, b)
+        for a, b in zip(par.results.distances, serial.results.distances, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+class TestValidation:
+    def test_errors(self, universe):
+        ag = universe.atoms
+        with pytest.raises(ValueError, match="exactly one of cutoff and radii"):
+            Contacts(ag)
+        with pytest.raises(ValueError, match="exactly one of cutoff and radii"):
+            Contacts(ag, cutoff=1.0, radii=0.5)
+        with pytest.raises(ValueError, match=r"radii must be a scalar or have shape \(300,\)"):
+            Contacts(ag, radii=np.ones(3))
+        with pytest.raises(ValueError, match="radii must be finite and non-negative"):
+            Contacts(ag, radii=-1.0)
+        with pytest.raises(ValueError, match="cutoff must be a finite non-negative number"):
+            Contacts(ag, cutoff=float("nan"))
+        with pytest.raises(ValueError, match="skin applies to sphere contacts"):
+            Contacts(ag, cutoff=1.0, skin=0.1)
+        with pytest.raises(ValueError, match="radii must be numbers or 'topology'"):
+            Contacts(ag, radii="vdw")
+        with pytest.raises(TypeError, match="atomgroup must be an MDAnalysis AtomGroup"):
+            Contacts(np.zeros((3, 3)), cutoff=1.0)
