@@ -146,11 +146,13 @@ class SweepAndPrune:
         n2 = 2 * n
         # One scratch block: sort keys, their ping-pong copy and index scratch
         # during sorting; the routed pairing events afterwards.
-        self._scratch = np.empty(5 * n + 2, np.uint64)
+        # (48 bytes per box: room for 3n routed events, which covers candidate
+        # ranges up to about one pairing partition long.)
+        self._scratch = np.empty(6 * n + 2, np.uint64)
         self._keys = self._scratch[:n2]
         self._keys_tmp = self._scratch[n2:2 * n2]
         self._idx_tmp = self._scratch[2 * n2:2 * n2 + n].view(np.int32)
-        self._events = self._scratch.view(np.int64)[:2 * ((5 * n + 2) // 2)].reshape(-1, 2)
+        self._events = self._scratch.view(np.int64).reshape(-1, 2)
         self._pair_layout = None
         self._ix = np.empty(n2, np.int32)
         self._iy = np.empty(n2, np.int32)
@@ -315,6 +317,7 @@ class SweepAndPrune:
                                           self._gather_hist, self._pstarts, events)
                 if need <= events.shape[0]:
                     break
+                # Very long candidate ranges: more events than the scratch holds.
                 self._events_extra = np.empty((need + need // 8, 2), np.int64)
                 events = self._events = self._events_extra
             stats["bins"] = nbins
