@@ -182,6 +182,11 @@ def execute(specs, peers, *, build, repeats, n_threads, max_seconds, settings,
     from . import harness, report
 
     harness.stabilise_malloc()
+    machine = report.machine_description()
+    load = machine.get("load_average")
+    _out(f"machine: {machine['cpu_model']}, {machine['usable_cores']} usable cores, "
+         f"{n_threads} threads for threaded peers"
+         + (f", load average {load[0]:.2f}" if load else ""))
     usable = []
     missing = {}
     for p in peers:
