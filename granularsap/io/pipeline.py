@@ -195,6 +195,48 @@ def frame_contacts(frame: Frame, params: ContactParams) -> FrameResult:
                        clump_pairs=clump_pairs, seconds=time.perf_counter() - t0)
 
 
+def _prefetch(iterable, depth=2):
+    """Iterate ``iterable`` in a background thread, ``depth`` items ahead.
+
+    Reading the next frame (text parsing) overlaps the engine's work on the
+    current one, which releases the GIL.  Exceptions are re-raised in order.
+    """
+    import queue
+    import threading
+
+    q = queue.Queue(maxsize=depth)
+    done = object()
+    stop = threading.Event()
+
+    def work():
+        try:
+            for item in iterable:
+                while not stop.is_set():
+                    try:
+                        q.put((True, item), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            q.put((True, done))
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer
+            q.put((False, exc))
+
+    thread = threading.Thread(target=work, name="granularsap-reader", daemon=True)
+    thread.start()
+    try:
+        while True:
+            ok, item = q.get()
+            if not ok:
+                raise item
+            if item is done:
+                return
+            yield item
+    finally:
+        stop.set()
+
+
 def _frames_text(frames: slice) -> str:
     return ":".join("" if v is None else str(v) for v in (frames.start, frames.stop, frames.step))
 
@@ -326,7 +368,7 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
                 yield frame
 
         if workers is None and scheduler is None:
-            results = (frame_contacts(fr, params) for fr in timed_frames())
+            results = (frame_contacts(fr, params) for fr in _prefetch(timed_frames()))
         else:
             runner = _DaskRunner(workers=workers, scheduler=scheduler)
             results = runner.map_ordered(timed_frames(), params)
