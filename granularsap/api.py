@@ -297,39 +297,47 @@ class SweepAndPrune:
             z0, inv_h, reach, nbins = sw.third_axis_bins(lower, upper, a2, self.max_bins)
             pparts = self._pair_parts(n, threads, nbins)
             delta = (n + pparts - 1) // pparts
-            if self._pair_layout != (pparts, nbins):
-                self._pair_layout = (pparts, nbins)
+            if self._pair_layout != (pparts, nbins, threads):
+                self._pair_layout = (pparts, nbins, threads)
                 self._off_part = st.layout(delta)
                 self._trees_pair = np.empty((pparts, nbins * self._off_part[-1]), np.uint64)
-                self._gather_hist = np.empty((threads, pparts), np.int64)
-                self._pstarts = np.empty(pparts + 1, np.int64)
+                self._reg_count = np.zeros((threads, pparts), np.int64)
+                self._reg_cap = None
                 self._pcounts = np.zeros(pparts, np.int64)
                 self._ptested = np.zeros(pparts, np.int64)
                 self._pair_hint = None
-            if self._gather_hist.shape[0] != threads:
-                self._gather_hist = np.empty((threads, pparts), np.int64)
-            # The sort scratch is free now: it holds the routed event stream.
+            # Event regions per (chunk, partition), sized from the last frame.
             events = self._events
+            if self._reg_cap is None:
+                guess = (3 * n) // (threads * pparts)
+                self._reg_cap = np.full((threads, pparts), guess, np.int64)
             while True:
-                need = sw.gather_parallel(self._iy, n, lower, upper, a0, a2, self._info,
-                                          self._rinv, self._br,
-                                          z0, inv_h, nbins, delta, pparts,
-                                          self._gather_hist, self._pstarts, events)
-                if need <= events.shape[0]:
+                reg_start = np.zeros_like(self._reg_cap)
+                flat = np.cumsum(self._reg_cap.ravel())
+                reg_start.ravel()[1:] = flat[:-1]
+                need = int(flat[-1])
+                if need > events.shape[0]:
+                    # Very long candidate ranges: more events than the scratch holds.
+                    self._events_extra = np.empty((need + need // 8, 2), np.int64)
+                    events = self._events = self._events_extra
+                ok = sw.gather_parallel(self._iy, n, lower, upper, a0, a2, self._info,
+                                        self._br, z0, inv_h, nbins, delta, reg_start,
+                                        self._reg_cap, self._reg_count, events)
+                used = self._reg_count
+                self._reg_cap = used + used // 16 + 64
+                if ok:
                     break
-                # Very long candidate ranges: more events than the scratch holds.
-                self._events_extra = np.empty((need + need // 8, 2), np.int64)
-                events = self._events = self._events_extra
             stats["bins"] = nbins
             stats["pair_partitions"] = pparts
-            stats["events"] = int(need)
+            stats["events"] = int(used.sum())
             cap = self._capacity(n, pparts)
             self._out = self._grow(self._out, pparts, cap)
             todo = np.ones(pparts, np.bool_)
             while True:
-                sw.pairing_parallel(events, self._pstarts, n, self._br, self._rinv,
-                                    self._trees_pair, self._off_part, nbins, z0, inv_h,
-                                    reach, self._out, self._pcounts, self._ptested, todo)
+                sw.pairing_parallel(events, reg_start, self._reg_count, n, self._br,
+                                    self._rinv, self._trees_pair, self._off_part, nbins, z0,
+                                    inv_h, reach, self._out, self._pcounts, self._ptested,
+                                    todo)
                 need = int(self._pcounts.max())
                 if need <= self._out.shape[1] // 2:
                     break

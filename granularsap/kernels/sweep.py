@@ -262,8 +262,8 @@ def _route(e, n, info, delta):
 
 
 @pjit
-def gather_parallel(iy, n, lower, upper, a0, a2, info, rinv, br,
-                    z0, inv_h, k, delta, nparts, hist, starts, events):
+def gather_parallel(iy, n, lower, upper, a0, a2, info, br, z0, inv_h, k, delta,
+                    reg_start, reg_cap, reg_count, events):
     """Route the secondary sweep to the rank partitions of Algorithm 4.
 
     Every endpoint of the secondary order goes, in order, to the partition
@@ -273,48 +273,37 @@ def gather_parallel(iy, n, lower, upper, a0, a2, info, rinv, br,
     once per event and partition; each partition then reads only its own
     events, in sweep order.
 
+    The secondary order is cut into ``T`` chunks (one per thread).  Chunk
+    ``t`` writes the events of partition ``p`` into the region of ``events``
+    that starts at ``reg_start[t, p]`` and holds ``reg_cap[t, p]`` events;
+    ``reg_count[t, p]`` receives how many there were.  Regions are sized from
+    the previous frame (temporal coherence), so one pass normally suffices;
+    returns False if a region overflowed (the counts are still exact, and the
+    caller resizes and calls again).
+
     ``events[t] = (word, L << 32 | U)`` with ``word`` = rank (bits 0-31), the
-    object's third-axis bin (bits 32-47), and flags HIGH, QUERY, OWN.
-    ``starts`` (length ``nparts + 1``) receives the partition offsets.
-    Returns the number of events; when ``events`` is too small nothing is
-    written and the caller calls again with a larger one.  Also copies the
-    boxes into rank order (``br``).
+    object's third-axis bin (bits 32-47), and flags HIGH, QUERY, OWN.  Also
+    records bins in ``info[:, 3]`` and copies the boxes into rank order
+    (``br``), reading the inputs in id order.
     """
     n2 = 2 * n
-    nchunks = hist.shape[0]
+    nchunks = reg_start.shape[0]
+    nparts = reg_start.shape[1]
     chunk = (n2 + nchunks - 1) // nchunks
     for i in numba.prange(n):
-        info[i, 3] = _bin(lower[i, a2], z0, inv_h, k)
+        r = info[i, 0]
+        zlo = lower[i, a2]
+        info[i, 3] = _bin(zlo, z0, inv_h, k)
+        br[r, 0] = lower[i, a0]
+        br[r, 1] = upper[i, a0]
+        br[r, 2] = zlo
+        br[r, 3] = upper[i, a2]
+    ok = np.ones(nchunks, np.bool_)
     for t in numba.prange(nchunks):
         a = min(t * chunk, n2)
         b = min(a + chunk, n2)
         for p in range(nparts):
-            hist[t, p] = 0
-        for q in range(a, b):
-            own, qa, qb = _route(iy[q], n, info, delta)
-            hist[t, own] += 1
-            for p in range(qa, qb + 1):
-                if p != own:
-                    hist[t, p] += 1
-    total = 0
-    for p in range(nparts):
-        starts[p] = total
-        for t in range(nchunks):
-            c = hist[t, p]
-            hist[t, p] = total
-            total += c
-    starts[nparts] = total
-    if total > events.shape[0]:
-        return total
-    for r in numba.prange(n):
-        i = rinv[r]
-        br[r, 0] = lower[i, a0]
-        br[r, 1] = upper[i, a0]
-        br[r, 2] = lower[i, a2]
-        br[r, 3] = upper[i, a2]
-    for t in numba.prange(nchunks):
-        a = min(t * chunk, n2)
-        b = min(a + chunk, n2)
+            reg_count[t, p] = 0
         for q in range(a, b):
             e = iy[q]
             own, qa, qb = _route(e, n, info, delta)
@@ -326,24 +315,30 @@ def gather_parallel(iy, n, lower, upper, a0, a2, info, rinv, br,
                 i = e - n
                 flags = HIGH
                 lu = np.int64(0)
-            word = np.int64(info[i, 0]) | (np.int64(info[i, 3]) << 32) | flags
+            word = np.int64(info[i, 0]) | (np.int64(info[i, 3]) << 32) | flags | OWN
             if qa <= own and own <= qb:
-                pos = hist[t, own]
-                hist[t, own] = pos + 1
-                events[pos, 0] = word | OWN | QUERY
-                events[pos, 1] = lu
+                word |= QUERY
+            c = reg_count[t, own]
+            if c < reg_cap[t, own]:
+                events[reg_start[t, own] + c, 0] = word
+                events[reg_start[t, own] + c, 1] = lu
             else:
-                pos = hist[t, own]
-                hist[t, own] = pos + 1
-                events[pos, 0] = word | OWN
-                events[pos, 1] = lu
+                ok[t] = False
+            reg_count[t, own] = c + 1
+            word = (word & ~OWN) | QUERY
             for p in range(qa, qb + 1):
                 if p != own:
-                    pos = hist[t, p]
-                    hist[t, p] = pos + 1
-                    events[pos, 0] = word | QUERY
-                    events[pos, 1] = lu
-    return total
+                    c = reg_count[t, p]
+                    if c < reg_cap[t, p]:
+                        events[reg_start[t, p] + c, 0] = word
+                        events[reg_start[t, p] + c, 1] = lu
+                    else:
+                        ok[t] = False
+                    reg_count[t, p] = c + 1
+    for t in range(nchunks):
+        if not ok[t]:
+            return False
+    return True
 
 
 @jit
@@ -414,14 +409,14 @@ def _scan_range_k(trees, off, k, b, lo, hi, base, xlo, xhi, zlo, zhi, br, rinv, 
 
 
 @pjit
-def pairing_parallel(events, starts, n, br, rinv, trees, off, k, z0, inv_h, reach,
-                     out, counts, tested, todo):
+def pairing_parallel(events, reg_start, reg_count, n, br, rinv, trees, off, k, z0,
+                     inv_h, reach, out, counts, tested, todo):
     """Algorithm 4: rank-partitioned parallel pairing, without duplicates.
 
     Partition ``p`` owns ranks ``[beta, eps)`` and keeps only those in its
     active list, so each pair is found by exactly one partition and no
-    reduction is needed.  Its events (``gather_parallel``) arrive in sweep
-    order: OWN events insert (low, line 16) or delete (high, line 18) its
+    reduction is needed.  Its events (``gather_parallel``: one region per
+    chunk of the sweep, read in chunk order) arrive in sweep order: OWN events insert (low, line 16) or delete (high, line 18) its
     ranks; QUERY events run the clipped range query (lines 11-15).
 
     Extension: the active list of a partition is sharded into ``k`` SuccTrees
@@ -450,30 +445,32 @@ def pairing_parallel(events, starts, n, br, rinv, trees, off, k, z0, inv_h, reac
         buf = out[p]
         cnt = 0
         tst = 0
-        for t in range(starts[p], starts[p + 1]):  # line 6
-            e = events[t, 0]
-            r = e & RANK_MASK
-            b = (e >> 32) & 0xFFFF
-            if e & HIGH:  # line 17
-                st.delete_k(tree, off, k, b, r - beta)  # line 18
-                continue
-            if e & QUERY:  # line 10
-                lu = events[t, 1]
-                lo = max(lu >> 32, beta) - beta  # lines 8, 11
-                hi = min(lu & RANK_MASK, eps) - beta  # lines 9, 12
-                xlo = br[r, 0]
-                xhi = br[r, 1]
-                zlo = br[r, 2]
-                zhi = br[r, 3]
-                b0 = _bin(zlo - reach, z0, inv_h, k)
-                b1 = _bin(zhi, z0, inv_h, k)
-                me = rinv[r]
-                for bb in range(b0, b1 + 1):  # lines 13-15, per shard
-                    cnt, tt = _scan_range_k(tree, off, k, bb, lo, hi, beta, xlo, xhi,
-                                            zlo, zhi, br, rinv, me, buf, cnt, cap)
-                    tst += tt
-            if e & OWN:
-                st.ins_k(tree, off, k, b, r - beta)  # line 16
+        for c in range(reg_start.shape[0]):  # line 6: the regions in order
+            for t in range(reg_start[c, p], reg_start[c, p] + reg_count[c, p]):
+                e = events[t, 0]
+                r = e & RANK_MASK
+                b = (e >> 32) & 0xFFFF
+                if e & HIGH:  # line 17
+                    st.delete_k(tree, off, k, b, r - beta)  # line 18
+                    continue
+                if e & QUERY:  # line 10
+                    lu = events[t, 1]
+                    lo = max(lu >> 32, beta) - beta  # lines 8, 11
+                    hi = min(lu & RANK_MASK, eps) - beta  # lines 9, 12
+                    xlo = br[r, 0]
+                    xhi = br[r, 1]
+                    zlo = br[r, 2]
+                    zhi = br[r, 3]
+                    b0 = _bin(zlo - reach, z0, inv_h, k)
+                    b1 = _bin(zhi, z0, inv_h, k)
+                    me = rinv[r]
+                    for bb in range(b0, b1 + 1):  # lines 13-15, per shard
+                        cnt, tt = _scan_range_k(tree, off, k, bb, lo, hi, beta, xlo,
+                                                xhi, zlo, zhi, br, rinv, me, buf, cnt,
+                                                cap)
+                        tst += tt
+                if e & OWN:
+                    st.ins_k(tree, off, k, b, r - beta)  # line 16
         counts[p] = cnt
         tested[p] = tst
 
