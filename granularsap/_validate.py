@@ -13,11 +13,12 @@ import numpy as np
 from ._numba import max_threads
 
 
-def as_coords(x, name, *, ncols=3, allow_empty=True):
+def as_coords(x, name, *, ncols=3, allow_empty=True, check_finite=True):
     """Return ``x`` as a C-contiguous float64 ``(n, ncols)`` array of finite values.
 
     float32 input is widened exactly; integer input is converted; complex,
-    object and string input is a TypeError.  Never down-casts.
+    object and string input is a TypeError.  Never down-casts.  With
+    ``check_finite=False`` the caller checks finiteness itself.
     """
     if hasattr(x, "positions") and not isinstance(x, np.ndarray):
         # MDAnalysis AtomGroup or similar
@@ -38,7 +39,7 @@ def as_coords(x, name, *, ncols=3, allow_empty=True):
     if not allow_empty and arr.shape[0] == 0:
         raise ValueError(f"{name} must not be empty")
     arr = np.ascontiguousarray(arr, dtype=np.float64)
-    if not np.isfinite(arr).all():
+    if check_finite and not np.isfinite(arr).all():
         bad = int(np.flatnonzero(~np.isfinite(arr).all(axis=1))[0])
         raise ValueError(f"{name} must be finite, got NaN or inf in row {bad}")
     return arr
@@ -54,7 +55,7 @@ def as_vector(x, name, n, *, nonnegative=True):
     elif arr.ndim != 1 or arr.shape[0] != n:
         raise ValueError(f"{name} must be a scalar or have shape ({n},), got {arr.shape}")
     arr = np.ascontiguousarray(arr, dtype=np.float64)
-    if not np.isfinite(arr).all():
+    if check_finite and not np.isfinite(arr).all():
         raise ValueError(f"{name} must be finite, got NaN or inf")
     if nonnegative and arr.size and arr.min() < 0:
         bad = int(np.argmin(arr))

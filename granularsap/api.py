@@ -17,6 +17,7 @@ import numpy as np
 
 from ._numba import num_threads
 from ._validate import as_coords, check_n_threads
+from .kernels import checks as _checks
 from .kernels import radixsort as rs
 from .kernels import succtree as st
 from .kernels import sweep as sw
@@ -63,16 +64,19 @@ def _parse_axes(axes):
 
 
 def _check_boxes(lower, upper):
-    lower = as_coords(lower, "lower")
-    upper = as_coords(upper, "upper")
+    lower = as_coords(lower, "lower", check_finite=False)
+    upper = as_coords(upper, "upper", check_finite=False)
     if lower.shape[0] != upper.shape[0]:
         raise ValueError("lower and upper must have the same number of rows, got "
                          f"{lower.shape[0]} and {upper.shape[0]}")
     if lower.shape[0] > MAX_BOXES:
         raise ValueError(f"at most {MAX_BOXES} boxes are supported, got {lower.shape[0]}")
-    bad = lower > upper
-    if bad.any():
-        i, a = np.argwhere(bad)[0]
+    status, i, a = _checks.check_boxes(lower, upper)
+    if status == _checks.NONFINITE_LOWER:
+        raise ValueError(f"lower must be finite, got NaN or inf in row {i}")
+    if status == _checks.NONFINITE_UPPER:
+        raise ValueError(f"upper must be finite, got NaN or inf in row {i}")
+    if status == _checks.INVERTED:
         raise ValueError(f"lower must not exceed upper, got lower={lower[i, a]!r} > "
                          f"upper={upper[i, a]!r} at box {i}, axis {a}")
     return lower, upper
