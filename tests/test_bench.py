@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 import types
 
 import numpy as np
@@ -50,6 +51,29 @@ class SwapsOnePair(Brute):
                            if j > pairs[0, 0] and not np.any((pairs[:, 0] == pairs[0, 0])
                                                              & (pairs[:, 1] == j)))
         return pairs
+
+
+class Fast(Brute):
+    """Pairs computed in setup: runs take no time."""
+
+    name = "granularsap"
+
+    def setup(self, workload, n_threads):
+        super().setup(workload, n_threads)
+        self.pairs = brute_pairs(workload)
+
+    def run(self, frame):
+        return self.pairs
+
+
+class Slow(Fast):
+    """Every run takes 0.1 s."""
+
+    name = "slow"
+
+    def run(self, frame):
+        time.sleep(0.1)
+        return self.pairs
 
 
 class NotInstalled(Brute):
@@ -200,6 +224,28 @@ class TestCommand:
         out = capsys.readouterr().out
         assert "skipping peer not-installed: not available (ModuleNotFoundError" in out
         assert [r.peer for r in results[0].results] == ["granularsap"]
+
+    def test_slow_peer_is_left_out_at_larger_sizes(self, capsys):
+        sizes = {300: SMALL["md-liquid"](), 400: workloads.md_liquid(400, seed=1)}
+        results = bench_cli.execute(
+            [("md-liquid", 300), ("md-liquid", 400)],
+            [Fast(), Slow()], build=lambda name, n: sizes[n], repeats=1,
+            n_threads=1, max_seconds=0.05, settings={})
+        out = capsys.readouterr().out
+        assert "slow                 left out: took" in out
+        assert [r.peer for r in results[1].results] == ["granularsap"]
+        assert "timed once" in results[0].results[1].note
+
+    def test_peer_predicted_too_slow_is_left_out(self, capsys):
+        sizes = {300: SMALL["md-liquid"](), 3000: workloads.md_liquid(3000, seed=1)}
+        results = bench_cli.execute(
+            [("md-liquid", 300), ("md-liquid", 3000)], [Fast(), Slow()],
+            build=lambda name, n: sizes[n], repeats=1, n_threads=1, max_seconds=0.2,
+            settings={})
+        out = capsys.readouterr().out
+        assert "slow                 left out: its warm-up would take about 1 s" in out
+        assert [r.peer for r in results[0].results] == ["granularsap", "slow"]
+        assert [r.peer for r in results[1].results] == ["granularsap"]
 
     def test_json_and_png_are_written(self, tmp_path, capsys):
         jpath, ppath = tmp_path / "bench.json", tmp_path / "bench.png"

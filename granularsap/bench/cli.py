@@ -27,6 +27,9 @@ from .workloads import WORKLOAD_NAMES, WORKLOADS
 
 #: seconds between progress lines inside one peer's timed runs
 PROGRESS_EVERY = 20.0
+#: a peer whose warm-up, scaled linearly in N from the previous size, would take
+#: more than this many times --max-seconds is left out at that size
+PREDICT_FACTOR = 4.0
 
 
 def _usable_cores():
@@ -88,7 +91,9 @@ def add_arguments(parser):
                         help="trajectory frames (default 50, 10 with --quick)")
     parser.add_argument("--max-seconds", type=float, default=120.0, metavar="S",
                         help="time budget per peer per workload; a peer whose warm-up takes "
-                        "longer is timed once and left out at larger sizes (default 120)")
+                        "longer is timed once and left out at larger sizes, and so is one "
+                        "whose warm-up extrapolated linearly in N would exceed 4 S "
+                        "(default 120)")
     parser.add_argument("--data-dir", default="data",
                         help="directory of real trajectories for the 'data' workload")
     parser.add_argument("--cutoff", type=float, default=None,
@@ -200,6 +205,7 @@ def execute(specs, peers, *, build, repeats, n_threads, max_seconds, settings,
                     max_seconds=max_seconds, peers=[p.name for p in usable])
     results = []
     slow = {}  # (workload family, peer) -> reason it is left out at larger sizes
+    history = {}  # (workload family, peer) -> (n, warm-up seconds) of its last size
     total = len(specs)
     for k, (name, what, *rest) in enumerate(specs, 1):
         density = rest[0] if rest else 0.35
@@ -215,6 +221,12 @@ def execute(specs, peers, *, build, repeats, n_threads, max_seconds, settings,
              f"{len(workload.frames) - 1 if len(workload.frames) > 1 else repeats} timed runs")
         run_peers = []
         for p in usable:
+            if (family, p.name) not in slow and (family, p.name) in history:
+                n0, warm = history[family, p.name]
+                predicted = warm * workload.n / max(n0, 1)
+                if predicted > PREDICT_FACTOR * max_seconds:
+                    slow[family, p.name] = (f"its warm-up would take about {predicted:.0f} s "
+                                            f"(it took {warm:.1f} s at N={n0})")
             if (family, p.name) in slow:
                 _out(f"  {p.name:<20} left out: {slow[family, p.name]}")
             else:
@@ -225,6 +237,8 @@ def execute(specs, peers, *, build, repeats, n_threads, max_seconds, settings,
                                     max_seconds=max_seconds, progress=lines.peer_done,
                                     tick=lines.tick)
         for r in wres.results:
+            if r.status == "ok" and r.warmup_seconds:
+                history[family, r.peer] = (workload.n, r.warmup_seconds)
             if r.status == "ok" and r.warmup_seconds and r.warmup_seconds > max_seconds:
                 slow[family, r.peer] = (f"took {r.warmup_seconds:.1f} s at N={workload.n} "
                                         f"(--max-seconds {max_seconds:g})")
