@@ -17,6 +17,7 @@ examples:
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
 import shlex
@@ -66,6 +67,7 @@ def _split(values):
 
 
 def add_arguments(parser):
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter  # keep the examples' lines
     parser.add_argument("workloads", nargs="*", metavar="WORKLOAD",
                         help="one or more of: " + ", ".join(WORKLOAD_NAMES)
                         + ", all (every generated workload and data/)")
