@@ -32,7 +32,7 @@ import numpy as np
 from .peers import GRANULARSAP
 
 #: pair sets up to this size are compared exactly (by a hash of the sorted codes)
-HASH_LIMIT = 30_000_000
+HASH_LIMIT = 100_000_000
 
 PHASES = ("sort", "candidates", "pairing")
 
