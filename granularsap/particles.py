@@ -120,7 +120,7 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
             pos_d = positions
         else:
             pos_d = wrapped
-            nshift = np.zeros_like(nshift)
+            nshift = np.empty((0, 3), np.int64)
     else:
         wrapped = positions
         guard = _guard(positions, half)
@@ -128,7 +128,7 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
         gshift = np.empty((0, 3), np.int64)
         centres = positions
         half_all = half + guard
-        nshift = np.zeros((n, 3), np.int64)
+        nshift = np.empty((0, 3), np.int64)
         pos_d = positions
         cell = np.zeros((3, 3)) if cell is None else cell
     if n == 0:

@@ -13,7 +13,8 @@ pair of box indices ``p < q``:
 * both ghosts: dropped (every such pair is found again from an owned side).
 
 The distance vector is ``(pos[b] - pos[a]) + S0 a + S1 b + S2 c`` with
-``S = T - nshift[b] + nshift[a]`` added one cell vector at a time (the order
+``S = T - nshift[b] + nshift[a]`` (just ``T`` if ``nshift`` is empty) added one
+cell vector at a time (the order
 MDAnalysis's triclinic minimum image uses), squared norm summed x, y, z, then
 one ``sqrt``; a pair is kept iff ``d <= rad[a] + rad[b] + skin`` (or ``<`` for
 ASE semantics).  Cost O(k) for k candidates in two passes over contiguous
@@ -36,61 +37,6 @@ PARALLEL_MIN = 16384
 
 
 @jit
-def _resolve(t, cand, n_own, owner, gshift, nshift):
-    """Owned indices ``a``, ``b`` and shift ``S`` of candidate ``t``; ``a < 0`` to drop it."""
-    p = cand[t, 0]
-    q = cand[t, 1]
-    if p > q:
-        p, q = q, p
-    s0 = 0
-    s1 = 0
-    s2 = 0
-    if p >= n_own:
-        return -1, -1, s0, s1, s2
-    a = p
-    if q < n_own:
-        b = q
-    else:
-        g = q - n_own
-        b = owner[g]
-        s0 = gshift[g, 0]
-        s1 = gshift[g, 1]
-        s2 = gshift[g, 2]
-        if a > b:
-            return -1, -1, s0, s1, s2
-        if a == b:
-            # self image, canonical for lexicographically positive T only; the
-            # caller decides whether self images are wanted at all
-            if not (s0 > 0 or (s0 == 0 and (s1 > 0 or (s1 == 0 and s2 > 0)))):
-                return -1, -1, s0, s1, s2
-    s0 = s0 - nshift[b, 0] + nshift[a, 0]
-    s1 = s1 - nshift[b, 1] + nshift[a, 1]
-    s2 = s2 - nshift[b, 2] + nshift[a, 2]
-    return a, b, s0, s1, s2
-
-
-@jit
-def _separation(pos, a, b, s0, s1, s2, cell):
-    """``|pos[b] - pos[a] + S @ cell|``, cell vectors added one at a time."""
-    dx = pos[b, 0] - pos[a, 0]
-    dy = pos[b, 1] - pos[a, 1]
-    dz = pos[b, 2] - pos[a, 2]
-    if s0 != 0:
-        dx += s0 * cell[0, 0]
-        dy += s0 * cell[0, 1]
-        dz += s0 * cell[0, 2]
-    if s1 != 0:
-        dx += s1 * cell[1, 0]
-        dy += s1 * cell[1, 1]
-        dz += s1 * cell[1, 2]
-    if s2 != 0:
-        dx += s2 * cell[2, 0]
-        dy += s2 * cell[2, 1]
-        dz += s2 * cell[2, 2]
-    return math.sqrt(dx * dx + dy * dy + dz * dz)
-
-
-@jit
 def _flag_range(t_lo, t_hi, cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
                 strict, self_images, split, keep):
     """Pass 1: ``keep[t]`` for candidates ``t_lo <= t < t_hi``; returns how many.
@@ -99,14 +45,55 @@ def _flag_range(t_lo, t_hi, cand, n_own, owner, gshift, pos, nshift, cell, rad, 
     two point sets of ``capped_distance``.
     """
     count = 0
+    use_nshift = nshift.shape[0] > 0
     for t in range(t_lo, t_hi):
         keep[t] = False
-        a, b, s0, s1, s2 = _resolve(t, cand, n_own, owner, gshift, nshift)
-        if a < 0 or (a == b and not self_images):
+        # resolution and separation written out: as function calls they made this
+        # loop several times slower
+        p = cand[t, 0]
+        q = cand[t, 1]
+        if p > q:
+            p, q = q, p
+        if p >= n_own:
             continue
+        a = p
+        b = q
+        s0 = 0
+        s1 = 0
+        s2 = 0
+        if q >= n_own:
+            g = q - n_own
+            b = owner[g]
+            if a > b:
+                continue
+            s0 = gshift[g, 0]
+            s1 = gshift[g, 1]
+            s2 = gshift[g, 2]
+            if a == b:
+                if not self_images:
+                    continue
+                if not (s0 > 0 or (s0 == 0 and (s1 > 0 or (s1 == 0 and s2 > 0)))):
+                    continue
         if split > 0 and (a < split) == (b < split):
             continue
-        d = _separation(pos, a, b, s0, s1, s2, cell)
+        if use_nshift:
+            s0 = s0 - nshift[b, 0] + nshift[a, 0]
+            s1 = s1 - nshift[b, 1] + nshift[a, 1]
+            s2 = s2 - nshift[b, 2] + nshift[a, 2]
+        dx = pos[b, 0] - pos[a, 0]
+        dy = pos[b, 1] - pos[a, 1]
+        dz = pos[b, 2] - pos[a, 2]
+        if s0 != 0 or s1 != 0 or s2 != 0:
+            dx += s0 * cell[0, 0]
+            dy += s0 * cell[0, 1]
+            dz += s0 * cell[0, 2]
+            dx += s1 * cell[1, 0]
+            dy += s1 * cell[1, 1]
+            dz += s1 * cell[1, 2]
+            dx += s2 * cell[2, 0]
+            dy += s2 * cell[2, 1]
+            dz += s2 * cell[2, 2]
+        d = math.sqrt(dx * dx + dy * dy + dz * dz)
         thr = rad[a] + rad[b] + skin
         if d < thr or (d == thr and not strict):
             keep[t] = True
@@ -118,13 +105,46 @@ def _flag_range(t_lo, t_hi, cand, n_own, owner, gshift, pos, nshift, cell, rad, 
 def _fill_range(t_lo, t_hi, o, cand, n_own, owner, gshift, pos, nshift, cell, keep,
                 want_shift, out_a, out_b, out_s, out_d):
     """Pass 2: write the kept candidates of ``[t_lo, t_hi)`` from output row ``o`` on."""
+    use_nshift = nshift.shape[0] > 0
     for t in range(t_lo, t_hi):
         if not keep[t]:
             continue
-        a, b, s0, s1, s2 = _resolve(t, cand, n_own, owner, gshift, nshift)
+        # the same resolution and separation as _flag_range, written out for speed
+        p = cand[t, 0]
+        q = cand[t, 1]
+        if p > q:
+            p, q = q, p
+        a = p
+        b = q
+        s0 = 0
+        s1 = 0
+        s2 = 0
+        if q >= n_own:
+            g = q - n_own
+            b = owner[g]
+            s0 = gshift[g, 0]
+            s1 = gshift[g, 1]
+            s2 = gshift[g, 2]
+        if use_nshift:
+            s0 = s0 - nshift[b, 0] + nshift[a, 0]
+            s1 = s1 - nshift[b, 1] + nshift[a, 1]
+            s2 = s2 - nshift[b, 2] + nshift[a, 2]
+        dx = pos[b, 0] - pos[a, 0]
+        dy = pos[b, 1] - pos[a, 1]
+        dz = pos[b, 2] - pos[a, 2]
+        if s0 != 0 or s1 != 0 or s2 != 0:
+            dx += s0 * cell[0, 0]
+            dy += s0 * cell[0, 1]
+            dz += s0 * cell[0, 2]
+            dx += s1 * cell[1, 0]
+            dy += s1 * cell[1, 1]
+            dz += s1 * cell[1, 2]
+            dx += s2 * cell[2, 0]
+            dy += s2 * cell[2, 1]
+            dz += s2 * cell[2, 2]
         out_a[o] = a
         out_b[o] = b
-        out_d[o] = _separation(pos, a, b, s0, s1, s2, cell)
+        out_d[o] = math.sqrt(dx * dx + dy * dy + dz * dz)
         if want_shift:
             out_s[o, 0] = s0
             out_s[o, 1] = s1
@@ -155,37 +175,28 @@ def _fill_parallel(n_chunks, offsets, cand, n_own, owner, gshift, pos, nshift, c
 
 
 @jit
-def _member_pair(u, i, j, t0, t1, t2, cell):
-    dx = u[j, 0] - u[i, 0]
-    dy = u[j, 1] - u[i, 1]
-    dz = u[j, 2] - u[i, 2]
-    if t0 != 0:
-        dx += t0 * cell[0, 0]
-        dy += t0 * cell[0, 1]
-        dz += t0 * cell[0, 2]
-    if t1 != 0:
-        dx += t1 * cell[1, 0]
-        dy += t1 * cell[1, 1]
-        dz += t1 * cell[1, 2]
-    if t2 != 0:
-        dx += t2 * cell[2, 0]
-        dy += t2 * cell[2, 1]
-        dz += t2 * cell[2, 2]
-    return math.sqrt(dx * dx + dy * dy + dz * dz)
-
-
-@jit
 def _clump_count_range(t_lo, t_hi, ca, cb, ct, start, members, u, cell, radii, skin, counts):
     """Number of sphere contacts for each candidate clump pair (image ``ct``)."""
     for t in range(t_lo, t_hi):
         a = ca[t]
         b = cb[t]
+        t0 = ct[t, 0]
+        t1 = ct[t, 1]
+        t2 = ct[t, 2]
+        shifted = t0 != 0 or t1 != 0 or t2 != 0
         c = 0
         for x in range(start[a], start[a + 1]):
             i = members[x]
             for y in range(start[b], start[b + 1]):
                 j = members[y]
-                d = _member_pair(u, i, j, ct[t, 0], ct[t, 1], ct[t, 2], cell)
+                dx = u[j, 0] - u[i, 0]
+                dy = u[j, 1] - u[i, 1]
+                dz = u[j, 2] - u[i, 2]
+                if shifted:
+                    dx += t0 * cell[0, 0] + t1 * cell[1, 0] + t2 * cell[2, 0]
+                    dy += t0 * cell[0, 1] + t1 * cell[1, 1] + t2 * cell[2, 1]
+                    dz += t0 * cell[0, 2] + t1 * cell[1, 2] + t2 * cell[2, 2]
+                d = math.sqrt(dx * dx + dy * dy + dz * dz)
                 if d <= radii[i] + radii[j] + skin:
                     c += 1
         counts[t] = c
@@ -198,12 +209,23 @@ def _clump_fill_range(t_lo, t_hi, ca, cb, ct, start, members, u, cell, radii, sk
     for t in range(t_lo, t_hi):
         a = ca[t]
         b = cb[t]
+        t0 = ct[t, 0]
+        t1 = ct[t, 1]
+        t2 = ct[t, 2]
+        shifted = t0 != 0 or t1 != 0 or t2 != 0
         o = offsets[t]
         for x in range(start[a], start[a + 1]):
             i = members[x]
             for y in range(start[b], start[b + 1]):
                 j = members[y]
-                d = _member_pair(u, i, j, ct[t, 0], ct[t, 1], ct[t, 2], cell)
+                dx = u[j, 0] - u[i, 0]
+                dy = u[j, 1] - u[i, 1]
+                dz = u[j, 2] - u[i, 2]
+                if shifted:
+                    dx += t0 * cell[0, 0] + t1 * cell[1, 0] + t2 * cell[2, 0]
+                    dy += t0 * cell[0, 1] + t1 * cell[1, 1] + t2 * cell[2, 1]
+                    dz += t0 * cell[0, 2] + t1 * cell[1, 2] + t2 * cell[2, 2]
+                d = math.sqrt(dx * dx + dy * dy + dz * dz)
                 if d <= radii[i] + radii[j] + skin:
                     if i < j:
                         out_pairs[o, 0] = i
