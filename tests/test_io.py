@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from granularsap.io import DumpFormatError, Frame, box_to_cell, cell_to_box, iter_frames
+from granularsap.io.lammps_dump import dump_frame_index, iter_lammps_dump
 from granularsap.io.pipeline import engine_cell
 
 from ._iohelpers import lammps_cell, random_frames, write_dump
@@ -202,6 +203,31 @@ class TestTruncatedAndCorrupt:
         path.write_text("".join(lines))
         with pytest.raises(DumpFormatError, match=r"frame 1, line 40: expected an 'ITEM:' line"):
             list(iter_frames(path))
+
+    def test_error_survives_pickling(self, tmp_path):
+        import pickle
+
+        err = DumpFormatError("a.dump", 3, 17, "truncated")
+        back = pickle.loads(pickle.dumps(err))
+        assert str(back) == str(err) == "a.dump: frame 3, line 17: truncated"
+        assert (back.path, back.frame, back.line) == ("a.dump", 3, 17)
+
+    def test_frame_index_reads_frames_independently(self, tmp_path):
+        path, lines = self._dump(tmp_path)
+        offsets, starts = dump_frame_index(path)
+        assert list(starts) == [1, 40, 79]
+        assert all(lines[k - 1].startswith("ITEM: TIMESTEP") for k in starts)
+        everything = list(iter_frames(path))
+        for k in (2, 0, 1):
+            (fr,) = iter_lammps_dump(path, frames=slice(0, 1),
+                                     start_at=(offsets[k], starts[k], k))
+            assert fr.index == k and fr.step == everything[k].step
+            np.testing.assert_array_equal(fr.positions, everything[k].positions)
+        text = "".join(lines)
+        path.write_text(text[:-40])
+        offsets, starts = dump_frame_index(path)
+        with pytest.raises(DumpFormatError, match=r"frame 2, line 117: expected 6 values"):
+            list(iter_lammps_dump(path, start_at=(offsets[2], starts[2], 2)))
 
     def test_missing_file(self, tmp_path):
         with pytest.raises(FileNotFoundError, match="nope.dump"):

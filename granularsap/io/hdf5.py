@@ -111,6 +111,7 @@ class FrameResult:
     distances: np.ndarray | None = None
     clump_pairs: np.ndarray | None = None
     seconds: float = 0.0
+    read_seconds: float = 0.0
 
 
 def pair_difference(a, b):

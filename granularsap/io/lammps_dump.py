@@ -20,6 +20,7 @@ unless ``coordinates=`` says otherwise.
 
 from __future__ import annotations
 
+import io
 import os
 import re
 
@@ -43,8 +44,11 @@ class DumpFormatError(ValueError):
     """A LAMMPS dump is truncated or malformed; the message names file, frame and line."""
 
     def __init__(self, path, frame, line, message):
-        self.path, self.frame, self.line = path, frame, line
+        self.path, self.frame, self.line, self.message = path, frame, line, message
         super().__init__(f"{path}: frame {frame}, line {line}: {message}")
+
+    def __reduce__(self):  # survives pickling (errors raised on Dask workers)
+        return (type(self), (self.path, self.frame, self.line, self.message))
 
 
 def count_dump_frames(path) -> int:
@@ -136,7 +140,45 @@ def _to_float(col, path, frame, first_line, name):
         raise  # pragma: no cover
 
 
-def iter_lammps_dump(path, *, frames=None, coordinates=None):
+def dump_frame_index(path):
+    """Byte offset and 1-based line number of every ``ITEM: TIMESTEP`` line.
+
+    A fast byte scan (no parsing), so that frames can be read independently,
+    e.g. by Dask workers: ``iter_lammps_dump(path, start_at=(offset, line, index))``.
+
+    Returns
+    -------
+    offsets, lines : (F,) ndarray of int64
+    """
+    key = b"ITEM: TIMESTEP"
+    offsets, lines = [], []
+    base = 0
+    newlines = 0
+    tail = b""
+    with open(path, "rb") as fh:
+        while True:
+            chunk = fh.read(1 << 24)
+            if not chunk:
+                break
+            buf = tail + chunk
+            start = base - len(tail)
+            pos = buf.find(key)
+            prev, count = 0, newlines - tail.count(b"\n")
+            while pos >= 0:
+                if pos == 0 or buf[pos - 1:pos] == b"\n":
+                    count += buf.count(b"\n", prev, pos)
+                    prev = pos
+                    if start + pos not in offsets[-1:]:
+                        offsets.append(start + pos)
+                        lines.append(count + 1)
+                pos = buf.find(key, pos + 1)
+            newlines += chunk.count(b"\n")
+            base += len(chunk)
+            tail = buf[-(len(key) - 1):]
+    return np.asarray(offsets, dtype=np.int64), np.asarray(lines, dtype=np.int64)
+
+
+def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
     """Yield :class:`Frame` objects from a LAMMPS text dump.
 
     Parameters
@@ -146,6 +188,10 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None):
         Frames to yield (non-negative start/stop); skipped frames are not parsed.
     coordinates : {"x", "xu", "xs", "xsu"}, optional
         Which coordinate columns to use; default the first present in that order.
+    start_at : (int, int, int), optional
+        ``(byte offset, line number, frame number)`` of a frame's first line
+        (see :func:`dump_frame_index`): read from there, numbering frames from
+        that frame number; ``frames`` then counts from it too.
 
     Yields
     ------
@@ -166,8 +212,15 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None):
     if start < 0 or (stop is not None and stop < 0) or step <= 0:
         raise ValueError(f"frames must be a slice with non-negative start/stop and positive "
                          f"step for a LAMMPS dump, got {sel}")
-    with open(path, encoding="utf-8", errors="replace") as fh:
+    with open(path, "rb") as raw:
+        first_index = 0
+        if start_at is not None:
+            raw.seek(int(start_at[0]))
+            first_index = int(start_at[2])
+        fh = io.TextIOWrapper(raw, encoding="utf-8", errors="replace")
         src = _Lines(fh)
+        if start_at is not None:
+            src.lineno = int(start_at[1]) - 1
         index = -1
         line = src.next()
         while line is not None:
@@ -181,7 +234,7 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None):
             header = {"timestep": None, "time": None, "natoms": None, "cell": None,
                       "pbc": np.zeros(3, bool), "origin": np.zeros(3)}
 
-            def fail(msg, line_no=None, _index=index):
+            def fail(msg, line_no=None, _index=first_index + index):
                 raise DumpFormatError(path, _index, src.lineno if line_no is None else line_no,
                                       msg)
 
@@ -266,8 +319,8 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None):
             rows = src.take(natoms)
             if len(rows) != natoms:
                 fail(f"truncated: expected {natoms} atom rows, got {len(rows)}")
-            yield _build_frame(path, index, names, rows, header, coordinates, first_row,
-                               frame_start)
+            yield _build_frame(path, first_index + index, names, rows, header, coordinates,
+                               first_row, frame_start)
             line = src.next()
 
 

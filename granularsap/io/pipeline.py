@@ -241,6 +241,23 @@ def _frames_text(frames: slice) -> str:
     return ":".join("" if v is None else str(v) for v in (frames.start, frames.stop, frames.step))
 
 
+def dump_frame_contacts(path, offset, line, index, params: ContactParams) -> FrameResult:
+    """Read frame ``index`` of a LAMMPS dump from its byte offset, then its contacts.
+
+    The task a Dask worker runs when it can see the trajectory itself (local
+    cluster): the client only ships four numbers per frame.
+    """
+    from .lammps_dump import iter_lammps_dump
+
+    t0 = time.perf_counter()
+    (frame,) = iter_lammps_dump(path, frames=slice(0, 1), start_at=(offset, line, index))
+    frame = lean_frame(frame, params)
+    read = time.perf_counter() - t0
+    res = frame_contacts(frame, params)
+    res.read_seconds = read
+    return res
+
+
 class _DaskRunner:
     """Submit frames to a dask.distributed cluster, hand results back in order."""
 
@@ -262,6 +279,17 @@ class _DaskRunner:
         for frame in frames:
             data = self.client.scatter(frame)
             pending.append(self.client.submit(frame_contacts, data, params, pure=False))
+            if len(pending) >= self.window:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
+
+    def map_dump(self, path, rows, params):
+        """Workers read the frames themselves: rows are (offset, line, index)."""
+        pending = collections.deque()
+        for offset, line, index in rows:
+            pending.append(self.client.submit(dump_frame_contacts, path, int(offset), int(line),
+                                              int(index), params, pure=False))
             if len(pending) >= self.window:
                 yield pending.popleft().result()
         while pending:
@@ -369,11 +397,20 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
 
         if workers is None and scheduler is None:
             results = (frame_contacts(fr, params) for fr in _prefetch(timed_frames()))
+        elif backend == "lammps-dump" and scheduler is None:
+            # local workers see the file: each reads its own frames from their byte offsets
+            from .lammps_dump import dump_frame_index
+
+            runner = _DaskRunner(workers=workers)
+            offsets, lines = dump_frame_index(trajectory)
+            rows = [(offsets[k], lines[k], k) for k in range(len(offsets))[todo]]
+            results = runner.map_dump(trajectory, rows, params)
         else:
             runner = _DaskRunner(workers=workers, scheduler=scheduler)
             results = runner.map_ordered(timed_frames(), params)
         for res in results:
             timing["compute"] += res.seconds
+            timing["read"] += res.read_seconds
             t0 = time.perf_counter()
             writer.append(res)
             timing["write"] += time.perf_counter() - t0
