@@ -39,6 +39,9 @@ from .._numba import jit, pjit
 SIGN = np.uint64(0x8000000000000000)
 RADIX_BITS = 11
 RADIX = 1 << RADIX_BITS
+#: Passes of one LSD sort at most (64-bit keys); ``count`` scratch holds
+#: ``MAX_PASSES * RADIX`` counters.
+MAX_PASSES = 6
 MASK = np.uint64(RADIX - 1)
 
 
@@ -102,43 +105,53 @@ def _insertion_sort(keys, idx, lo, hi):
 def _lsd_passes(ka, ia, kb, ib, lo, hi, count, kmin, shift, stop):
     """Stable LSD passes over bits ``[shift, stop)`` of ``key - kmin``.
 
-    Returns True when the result is in ``(ka, ia)``.  Passes in which every
-    key has the same digit are skipped.
+    The digit histograms of all passes (at most ``MAX_PASSES``) are taken in
+    one read; each pass is then one scatter.  Passes in which every key has
+    the same digit are skipped.  Returns True when the result is in
+    ``(ka, ia)``.
     """
     m = hi - lo
+    npass = (stop - shift + RADIX_BITS - 1) // RADIX_BITS
+    if npass <= 0:
+        return True
+    hist = count[: npass * RADIX].reshape(npass, RADIX)
+    for d in range(npass * RADIX):
+        count[d] = 0
+    for a in range(lo, hi):
+        v = (ka[a] - kmin) >> np.uint64(shift)
+        for j in range(npass):
+            hist[j, np.intp(v & MASK)] += 1
+            v >>= np.uint64(RADIX_BITS)
     in_a = True
-    while shift < stop:
-        sh = np.uint64(shift)
+    for j in range(npass):
+        sh = np.uint64(shift + j * RADIX_BITS)
+        h = hist[j]
+        skip = False
         for d in range(RADIX):
-            count[d] = 0
+            if h[d] == m:
+                skip = True
+                break
+            if h[d] != 0:
+                break
+        if skip:
+            continue
         if in_a:
             src_k, src_i, dst_k, dst_i = ka, ia, kb, ib
         else:
             src_k, src_i, dst_k, dst_i = kb, ib, ka, ia
-        for a in range(lo, hi):
-            count[np.intp(((src_k[a] - kmin) >> sh) & MASK)] += 1
-        skip = False
+        total = lo
         for d in range(RADIX):
-            if count[d] == m:
-                skip = True
-                break
-            if count[d] != 0:
-                break
-        if not skip:
-            total = lo
-            for d in range(RADIX):
-                c = count[d]
-                count[d] = total
-                total += c
-            for a in range(lo, hi):
-                k = src_k[a]
-                d = np.intp(((k - kmin) >> sh) & MASK)
-                p = count[d]
-                count[d] = p + 1
-                dst_k[p] = k
-                dst_i[p] = src_i[a]
-            in_a = not in_a
-        shift += RADIX_BITS
+            c = h[d]
+            h[d] = total
+            total += c
+        for a in range(lo, hi):
+            k = src_k[a]
+            d = np.intp(((k - kmin) >> sh) & MASK)
+            p = h[d]
+            h[d] = p + 1
+            dst_k[p] = k
+            dst_i[p] = src_i[a]
+        in_a = not in_a
     return in_a
 
 
@@ -231,7 +244,7 @@ def sort_sequential(lower, upper, axis, keys, keys_tmp, idx, idx_tmp):
     _endpoint_keys_chunk(lower, upper, axis, keys, 0, n2)
     for e in range(n2):
         idx[e] = e
-    count = np.empty(RADIX, np.int64)
+    count = np.empty(MAX_PASSES * RADIX, np.int64)
     if not radix_segment(keys, idx, keys_tmp, idx_tmp, 0, n2, count):
         for e in range(n2):
             idx[e] = idx_tmp[e]
@@ -281,7 +294,7 @@ def sort_parallel(lower, upper, axis, bounds, keys, keys_tmp, idx, idx_tmp,
             idx[p] = e
     # Lines 4-5: sort every bucket independently.
     for q in numba.prange(m):
-        count = np.empty(RADIX, np.int64)
+        count = np.empty(MAX_PASSES * RADIX, np.int64)
         lo = starts[q]
         hi = starts[q + 1]
         if not radix_segment(keys_tmp, idx, keys, idx_tmp, lo, hi, count):
