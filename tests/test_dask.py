@@ -40,6 +40,16 @@ class TestDask:
             np.testing.assert_array_equal(cf.index, np.arange(9))
             assert cf.n_contacts.sum() > 0
 
+    def test_truncated_dump_on_workers(self, dump, tmp_path, capsys):
+        bad = tmp_path / "bad.dump"
+        text = dump.read_text()
+        bad.write_text(text[: len(text) - 100])
+        out = tmp_path / "bad.h5"
+        assert main(["contacts", str(bad), "-o", str(out), "--workers", "2", "-q"]) == 2
+        assert "bad.dump: frame 8, line" in capsys.readouterr().err
+        with ContactsFile(out, allow_incomplete=True) as cf:
+            assert cf.n_frames == 8 and not cf.complete
+
     def test_existing_scheduler_equals_serial(self, dump, serial, tmp_path):
         with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                       dashboard_address=None) as cluster:
