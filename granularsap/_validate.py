@@ -55,7 +55,7 @@ def as_vector(x, name, n, *, nonnegative=True):
     elif arr.ndim != 1 or arr.shape[0] != n:
         raise ValueError(f"{name} must be a scalar or have shape ({n},), got {arr.shape}")
     arr = np.ascontiguousarray(arr, dtype=np.float64)
-    if check_finite and not np.isfinite(arr).all():
+    if not np.isfinite(arr).all():
         raise ValueError(f"{name} must be finite, got NaN or inf")
     if nonnegative and arr.size and arr.min() < 0:
         bad = int(np.argmin(arr))

@@ -308,7 +308,7 @@ def _plot(results, path):
     clusters = results.get("clustering", {})
     ncols = len(sizes) + (1 if clusters else 0)
     fig, axes = plt.subplots(1, ncols, figsize=(4.2 * ncols, 3.8), squeeze=False)
-    for ax, n in zip(axes[0], sizes):
+    for ax, n in zip(axes[0], sizes, strict=False):
         rows = sorted((r for r in uni if r["n"] == n), key=lambda r: r["density"])
         d = [r["density"] for r in rows]
         sort = np.array([r["steady"]["sort"] for r in rows]) * 1e3
@@ -321,7 +321,7 @@ def _plot(results, path):
         else:
             ax.stackplot(d, sort, cand, pair, labels=["sorting", "candidates", "pairing"],
                          colors=["0.35", "0.55", "0.8"])
-            for x, r, top in zip(d, rows, sort + cand + pair):
+            for x, r, top in zip(d, rows, sort + cand + pair, strict=True):
                 ax.annotate(f"{r['speedup_threads']:.1f}x", (x, top), ha="center",
                             va="bottom", fontsize=8)
             ax.set_xlabel("density d")

@@ -416,8 +416,9 @@ def pairing_parallel(events, reg_start, reg_count, n, br, rinv, trees, off, k, z
     Partition ``p`` owns ranks ``[beta, eps)`` and keeps only those in its
     active list, so each pair is found by exactly one partition and no
     reduction is needed.  Its events (``gather_parallel``: one region per
-    chunk of the sweep, read in chunk order) arrive in sweep order: OWN events insert (low, line 16) or delete (high, line 18) its
-    ranks; QUERY events run the clipped range query (lines 11-15).
+    chunk of the sweep, read in chunk order) arrive in sweep order: OWN
+    events insert (low, line 16) or delete (high, line 18) its ranks; QUERY
+    events run the clipped range query (lines 11-15).
 
     Extension: the active list of a partition is sharded into ``k`` SuccTrees
     (interleaved in ``trees[p]``) by the bin of the box's low end on the
