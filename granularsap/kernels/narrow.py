@@ -18,7 +18,8 @@ cell vector at a time (the order
 MDAnalysis's triclinic minimum image uses), squared norm summed x, y, z, then
 one ``sqrt``; a pair is kept iff ``d <= rad[a] + rad[b] + skin`` (or ``<`` for
 ASE semantics).  Cost O(k) for k candidates in two passes over contiguous
-chunks: pass 1 flags and counts per chunk, pass 2 writes each chunk's kept
+chunks: pass 1 flags, counts and stores the distance per candidate (the only
+pass that reads positions, in candidate order), pass 2 writes each chunk's kept
 pairs from its prefix-sum offset, so no two threads write the same slot and the
 output order does not depend on the thread count.
 """
@@ -38,8 +39,8 @@ PARALLEL_MIN = 16384
 
 @jit
 def _flag_range(t_lo, t_hi, cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
-                strict, self_images, split, keep):
-    """Pass 1: ``keep[t]`` for candidates ``t_lo <= t < t_hi``; returns how many.
+                strict, self_images, split, keep, dist):
+    """Pass 1: ``keep[t]`` (and ``dist[t]`` if kept) for ``t_lo <= t < t_hi``; returns how many.
 
     ``split > 0`` keeps only pairs across the split (``a < split <= b``): the
     two point sets of ``capped_distance``.
@@ -97,19 +98,22 @@ def _flag_range(t_lo, t_hi, cand, n_own, owner, gshift, pos, nshift, cell, rad, 
         thr = rad[a] + rad[b] + skin
         if d < thr or (d == thr and not strict):
             keep[t] = True
+            dist[t] = d
             count += 1
     return count
 
 
 @jit
-def _fill_range(t_lo, t_hi, o, cand, n_own, owner, gshift, pos, nshift, cell, keep,
+def _fill_range(t_lo, t_hi, o, cand, n_own, owner, gshift, nshift, keep, dist,
                 want_shift, out_a, out_b, out_s, out_d):
-    """Pass 2: write the kept candidates of ``[t_lo, t_hi)`` from output row ``o`` on."""
+    """Pass 2: write the kept candidates of ``[t_lo, t_hi)`` from output row ``o`` on.
+
+    Reads the candidates and distances in order; positions are not touched again.
+    """
     use_nshift = nshift.shape[0] > 0
     for t in range(t_lo, t_hi):
         if not keep[t]:
             continue
-        # the same resolution and separation as _flag_range, written out for speed
         p = cand[t, 0]
         q = cand[t, 1]
         if p > q:
@@ -125,27 +129,14 @@ def _fill_range(t_lo, t_hi, o, cand, n_own, owner, gshift, pos, nshift, cell, ke
             s0 = gshift[g, 0]
             s1 = gshift[g, 1]
             s2 = gshift[g, 2]
-        if use_nshift:
-            s0 = s0 - nshift[b, 0] + nshift[a, 0]
-            s1 = s1 - nshift[b, 1] + nshift[a, 1]
-            s2 = s2 - nshift[b, 2] + nshift[a, 2]
-        dx = pos[b, 0] - pos[a, 0]
-        dy = pos[b, 1] - pos[a, 1]
-        dz = pos[b, 2] - pos[a, 2]
-        if s0 != 0 or s1 != 0 or s2 != 0:
-            dx += s0 * cell[0, 0]
-            dy += s0 * cell[0, 1]
-            dz += s0 * cell[0, 2]
-            dx += s1 * cell[1, 0]
-            dy += s1 * cell[1, 1]
-            dz += s1 * cell[1, 2]
-            dx += s2 * cell[2, 0]
-            dy += s2 * cell[2, 1]
-            dz += s2 * cell[2, 2]
         out_a[o] = a
         out_b[o] = b
-        out_d[o] = math.sqrt(dx * dx + dy * dy + dz * dz)
+        out_d[o] = dist[t]
         if want_shift:
+            if use_nshift:
+                s0 = s0 - nshift[b, 0] + nshift[a, 0]
+                s1 = s1 - nshift[b, 1] + nshift[a, 1]
+                s2 = s2 - nshift[b, 2] + nshift[a, 2]
             out_s[o, 0] = s0
             out_s[o, 1] = s1
             out_s[o, 2] = s2
@@ -154,24 +145,23 @@ def _fill_range(t_lo, t_hi, o, cand, n_own, owner, gshift, pos, nshift, cell, ke
 
 @pjit
 def _flag_parallel(n_chunks, cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
-                   strict, self_images, split, keep, counts):
+                   strict, self_images, split, keep, dist, counts):
     """``_flag_range`` over ``n_chunks`` contiguous chunks; ``counts[c]`` per chunk."""
     k = cand.shape[0]
     for c in numba.prange(n_chunks):
         counts[c] = _flag_range(c * k // n_chunks, (c + 1) * k // n_chunks, cand, n_own,
                                 owner, gshift, pos, nshift, cell, rad, skin, strict,
-                                self_images, split, keep)
+                                self_images, split, keep, dist)
 
 
 @pjit
-def _fill_parallel(n_chunks, offsets, cand, n_own, owner, gshift, pos, nshift, cell, keep,
+def _fill_parallel(n_chunks, offsets, cand, n_own, owner, gshift, nshift, keep, dist,
                    want_shift, out_a, out_b, out_s, out_d):
     """``_fill_range`` per chunk, chunk ``c`` writing from ``offsets[c]``."""
     k = cand.shape[0]
     for c in numba.prange(n_chunks):
         _fill_range(c * k // n_chunks, (c + 1) * k // n_chunks, offsets[c], cand, n_own,
-                    owner, gshift, pos, nshift, cell, keep, want_shift, out_a, out_b, out_s,
-                    out_d)
+                    owner, gshift, nshift, keep, dist, want_shift, out_a, out_b, out_s, out_d)
 
 
 @jit
@@ -267,23 +257,22 @@ def narrow_candidates(cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
     """Exact test of every candidate; returns ``(a, b, shift, dist)`` of the kept ones.
 
     ``a <= b`` are owned indices, ``shift`` the ``(m, 3)`` lattice shifts (``None``
-    unless ``want_shift``) and ``dist`` the float64 distances.  Two passes (flag
-    and count, then write) so that memory beyond the output is one byte per
-    candidate.
+    unless ``want_shift``) and ``dist`` the float64 distances.  Two passes: flag,
+    count and store the distance per candidate (9 bytes per candidate), then
+    write each chunk's kept pairs at its prefix-sum offset.
     """
     k = len(cand)
     keep = np.empty(k, dtype=np.bool_)
+    dist = np.empty(k, dtype=np.float64)
     chunks = _chunks(k, n_threads)
-    common = (cand, np.int64(n_own), owner, gshift, pos, nshift, cell)
+    flag_args = (cand, np.int64(n_own), owner, gshift, pos, nshift, cell, rad, float(skin),
+                 bool(strict), bool(self_images), np.int64(split), keep, dist)
     if chunks:
         counts = np.zeros(chunks, dtype=np.int64)
-        _flag_parallel(chunks, *common, rad, float(skin), bool(strict), bool(self_images),
-                       np.int64(split), keep, counts)
+        _flag_parallel(chunks, *flag_args, counts)
     else:
         chunks = 1
-        counts = np.array([_flag_range(0, k, *common, rad, float(skin), bool(strict),
-                                       bool(self_images), np.int64(split), keep) if k else 0],
-                          dtype=np.int64)
+        counts = np.array([_flag_range(0, k, *flag_args) if k else 0], dtype=np.int64)
     offsets = np.zeros(chunks + 1, dtype=np.int64)
     np.cumsum(counts, out=offsets[1:])
     m = int(offsets[-1])
@@ -291,12 +280,13 @@ def narrow_candidates(cand, n_own, owner, gshift, pos, nshift, cell, rad, skin,
     out_b = np.empty(m, dtype=np.int64)
     out_s = np.empty((m if want_shift else 0, 3), dtype=np.int64)
     out_d = np.empty(m, dtype=np.float64)
+    fill_args = (cand, np.int64(n_own), owner, gshift, nshift, keep, dist, bool(want_shift),
+                 out_a, out_b, out_s, out_d)
     if m:
         if chunks > 1:
-            _fill_parallel(chunks, offsets, *common, keep, bool(want_shift), out_a, out_b,
-                           out_s, out_d)
+            _fill_parallel(chunks, offsets, *fill_args)
         else:
-            _fill_range(0, k, 0, *common, keep, bool(want_shift), out_a, out_b, out_s, out_d)
+            _fill_range(0, k, 0, *fill_args)
     return out_a, out_b, (out_s if want_shift else None), out_d
 
 
