@@ -224,3 +224,22 @@ class TestInterruption:
         assert "resuming" not in capsys.readouterr().err
         with ContactsFile(out) as cf:
             assert cf.n_frames == 3
+
+
+class TestExample:
+    def test_postprocess_pour_example(self, tmp_path, capsys):
+        import importlib.util
+
+        dump = data_file("pour.dump")
+        path = os.path.join(os.path.dirname(__file__), os.pardir, "examples",
+                            "postprocess_pour.py")
+        spec = importlib.util.spec_from_file_location("postprocess_pour", path)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        out, png = tmp_path / "p.h5", tmp_path / "p.png"
+        mod.main(["--dump", dump, "--out", str(out), "--png", str(png)])
+        text = capsys.readouterr().out
+        assert "step  40000  Z = " in text and png.exists()
+        with ContactsFile(out) as cf:
+            z_last = 2 * cf.n_contacts[-1] / cf.n_particles[-1]
+        assert f"step  40000  Z = {z_last:.3f}" in text
