@@ -82,7 +82,7 @@ def add_arguments(parser):
     parser.add_argument("--threads", type=int, default=None, metavar="T",
                         help="threads for the peers that have them (default: usable cores)")
     parser.add_argument("--quick", action="store_true",
-                        help="small sizes, fewer repeats and frames: a check in seconds")
+                        help="small sizes, fewer repeats and frames (all workloads in minutes)")
     parser.add_argument("--json", metavar="PATH", help="write the full report as JSON")
     parser.add_argument("--plot", metavar="PATH", help="write PNG plots (time against N, "
                         "granularsap per phase)")
