@@ -195,3 +195,14 @@ def test_self_capped_distance_property(seed, n, cutoff, box):
     got = mda.self_capped_distance(pos, cutoff, box=box)
     want = mda_dist.self_capped_distance(pos, cutoff, box=box)
     _assert_same(got, want, swap=True)
+
+
+@pytest.mark.parametrize("box", [None, ORTHO], ids=["none", "ortho"])
+def test_neighbor_pairs_is_self_capped_distance(box):
+    # the SPEC's promise for the float64 API, on float32-exact inputs
+    from granularsap import neighbor_pairs
+
+    pos = _points(40, 300, box)
+    got = neighbor_pairs(pos, 2.25, box=box)
+    want = mda_dist.self_capped_distance(pos, max_cutoff=2.25, box=box)
+    _assert_same(got, want, swap=True)
