@@ -113,7 +113,7 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
         # rounding guard in fractional units as well
         reach = reach + 1e-12 * widths.max()
         owner, gshift = periodic.ghost_images(wrapped, cell, pbc, reach)
-        ghosts = periodic._shift(wrapped[owner], gshift, cell)
+        ghosts = periodic.translate(wrapped[owner], gshift, cell)
         centres = np.concatenate([wrapped, ghosts]) if len(owner) else wrapped
         half_all = np.concatenate([half, half[owner]]) + guard if len(owner) else half + guard
         if pos_for_distance == "original":
@@ -394,8 +394,8 @@ def clump_contacts(positions, radii, clump_ids, *, skin=0.0, box=None, n_threads
         np.maximum.at(bound, cidx, np.linalg.norm(u - centre[cidx], axis=1) + half + guard)
         reach = bound + bound.max() + 1e-12 * widths.max()
         owner, gshift = periodic.ghost_images(centre, cell, pbc, reach)
-        glo = periodic._shift(clo[owner], gshift, cell)
-        ghi = periodic._shift(chi[owner], gshift, cell)
+        glo = periodic.translate(clo[owner], gshift, cell)
+        ghi = periodic.translate(chi[owner], gshift, cell)
         lower = np.concatenate([clo, glo])
         upper = np.concatenate([chi, ghi])
         cell_k = cell

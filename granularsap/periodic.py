@@ -33,6 +33,7 @@ __all__ = [
     "fractional",
     "ghost_images",
     "perpendicular_widths",
+    "translate",
     "wrap",
 ]
 
@@ -229,12 +230,19 @@ def wrap(positions, cell, pbc=(True, True, True)):
     s = fractional(positions, cell)
     shifts = np.floor(s).astype(np.int64)
     shifts[:, ~pbc] = 0
-    wrapped = _shift(positions, -shifts, cell)
+    wrapped = translate(positions, -shifts, cell)
     return wrapped, shifts
 
 
-def _shift(positions, shifts, cell):
-    """``positions + shifts @ cell`` adding the cell vectors one at a time."""
+def translate(positions, shifts, cell):
+    """``positions + shifts @ cell``, adding the cell vectors one at a time.
+
+    Parameters
+    ----------
+    positions : (n, 3) array_like of float
+    shifts : (n, 3) ndarray of int
+    cell : (3, 3) ndarray of float64
+    """
     out = np.array(positions, dtype=np.float64, copy=True)
     for c in range(3):
         nz = shifts[:, c] != 0
