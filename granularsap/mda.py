@@ -13,6 +13,8 @@ rounded to float32 first (MDAnalysis's ``check_coords``) and the triclinic cell
 matrix is built the way ``triclinic_vectors`` builds it; distances are then
 computed in float64.  ``method`` and ``backend`` are accepted for signature
 compatibility and ignored: the search is always granularsap's Sweep and Prune.
+``granularsap.mda.Contacts`` (the parallel ``AnalysisBase``) lives in
+``granularsap.mda_analysis`` and is re-exported here on first access.
 
 Differences: pairs of ``self_capped_distance`` always have ``i < j`` (MDAnalysis's
 grid method returns some pairs as ``j, i``), row order is unspecified, and the
@@ -30,7 +32,17 @@ from . import periodic
 from ._validate import as_coords, as_scalar
 from .particles import _search
 
-__all__ = ["capped_distance", "self_capped_distance"]
+__all__ = ["Contacts", "capped_distance", "self_capped_distance"]  # noqa: F822 (lazy)
+
+
+def __getattr__(name):
+    # Contacts (an MDAnalysis AnalysisBase, granularsap/mda_analysis.py) is imported
+    # on first use so that the distance drop-ins work without MDAnalysis installed
+    if name == "Contacts":
+        from .mda_analysis import Contacts
+
+        return Contacts
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 _PBC = np.ones(3, dtype=bool)
 

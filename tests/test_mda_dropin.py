@@ -206,3 +206,11 @@ def test_neighbor_pairs_is_self_capped_distance(box):
     got = neighbor_pairs(pos, 2.25, box=box)
     want = mda_dist.self_capped_distance(pos, max_cutoff=2.25, box=box)
     _assert_same(got, want, swap=True)
+
+
+def test_contacts_is_reexported():
+    from granularsap import mda_analysis
+
+    assert mda.Contacts is mda_analysis.Contacts
+    with pytest.raises(AttributeError, match="has no attribute 'nope'"):
+        mda.nope  # noqa: B018
