@@ -88,6 +88,17 @@ class TestSchema:
                 assert pair_set(cf.died(f)) == prev - cur
                 assert cf.n_born[f] == len(cur - prev) and cf.n_died[f] == len(prev - cur)
 
+    @pytest.mark.parametrize("shuffled", [False, True])
+    def test_pair_difference_is_set_difference(self, shuffled):
+        rng = np.random.default_rng(8)
+        a = sort_pairs(np.unique(np.sort(rng.integers(0, 50, (300, 2)), axis=1), axis=0))
+        b = sort_pairs(np.unique(np.sort(rng.integers(0, 50, (300, 2)), axis=1), axis=0))
+        if shuffled:
+            b = b[rng.permutation(len(b))]
+        got = pair_difference(a, b)
+        assert pair_set(got) == pair_set(a) - pair_set(b)
+        assert len(got) == len(pair_set(got))
+
     def test_pair_difference_large_ids(self):
         a = np.array([[1, 2], [5_000_000_000, 6_000_000_000]], dtype=np.int64)
         b = np.array([[1, 2]], dtype=np.int64)

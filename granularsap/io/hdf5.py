@@ -122,6 +122,9 @@ def pair_difference(a, b):
     if top < 3_000_000_000:
         ka = a[:, 0] * top + a[:, 1]
         kb = b[:, 0] * top + b[:, 1]
+        if np.all(kb[1:] > kb[:-1]):  # rows sorted (as written): binary search, no sort
+            at = np.minimum(np.searchsorted(kb, ka), len(kb) - 1)
+            return a[kb[at] != ka]
         return a[~np.isin(ka, kb, assume_unique=True)]
     dt = np.dtype([("i", np.int64), ("j", np.int64)])  # pragma: no cover - huge ids
     va = np.ascontiguousarray(a).view(dt).ravel()
