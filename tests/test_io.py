@@ -318,3 +318,76 @@ class TestCells:
         got = granularsap.sphere_contacts(pos, radii, box=box)
         want, _ = brute_image_pairs(pos, 0.0, cell=cell, pbc=pbc, radii=radii)
         np.testing.assert_array_equal(sort_pairs(np.sort(got, axis=1)), sort_pairs(want))
+
+
+@pytest.fixture(scope="module")
+def lammps_dumps(tmp_path_factory):
+    """Dumps written by LAMMPS itself: triclinic, wrapped/unwrapped/scaled, unsorted rows."""
+    loader = pytest.importorskip("lammps_bridge._loader")
+    try:
+        lmp = loader.new_lammps()
+    except ImportError as exc:
+        pytest.skip(str(exc))
+    d = tmp_path_factory.mktemp("lammps")
+    files = {k: str(d / f"{k}.dump") for k in ("x", "xu", "xs", "all")}
+    lmp.commands_string(f"""
+        units lj
+        atom_style sphere
+        boundary p p p
+        atom_modify map array sort 5 1.0
+        region box prism 0 8 0 7 0 9 1.5 -1.0 0.7
+        create_box 2 box
+        create_atoms 1 random 150 4321 NULL
+        set type 1 diameter 0.8
+        velocity all create 3.0 4928
+        pair_style zero 1.0
+        pair_coeff * *
+        fix 1 all nve/sphere
+        dump d1 all custom 20 {files['x']} id type diameter x y z
+        dump d2 all custom 20 {files['xu']} xu yu zu type id
+        dump d3 all custom 20 {files['xs']} id xs ys zs radius
+        dump d4 all custom 20 {files['all']} id type x y z xu yu zu ix iy iz
+        run 60
+    """)
+    lmp.close()
+    return files
+
+
+
+@pytest.mark.lammps
+class TestDumpsWrittenByLammps:
+    """Dumps written by LAMMPS itself: triclinic, wrapped/unwrapped/scaled, unsorted rows."""
+
+    def test_wrapped_matches_ase_and_mdanalysis(self, lammps_dumps):
+        dumps = lammps_dumps
+        import ase.io
+
+        ours = list(iter_frames(dumps["x"]))
+        assert len(ours) == 4
+        ase_frames = ase.io.read(dumps["x"], format="lammps-dump-text", index=":")
+        mda = mda_frames(mda_universe(dumps["x"]))
+        for fr, at, (_, pos, dims, ids) in zip(ours, ase_frames, mda, strict=True):
+            np.testing.assert_array_equal(fr.ids, np.arange(1, 151))
+            np.testing.assert_array_equal(fr.ids, ids)
+            np.testing.assert_allclose(fr.positions, at.positions, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(fr.cell, at.cell[:], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(fr.positions - fr.origin, pos, atol=5e-5)
+            np.testing.assert_allclose(fr.box, dims, rtol=2e-6)
+            np.testing.assert_allclose(fr.radius, 0.4)
+        np.testing.assert_allclose(ours[0].cell, lammps_cell(8, 7, 9, 1.5, -1.0, 0.7),
+                                   atol=1e-12)
+
+    def test_unwrapped_and_scaled_agree_with_wrapped(self, lammps_dumps):
+        dumps = lammps_dumps
+        full = list(iter_frames(dumps["all"]))
+        unwrapped = list(iter_frames(dumps["xu"]))
+        scaled = list(iter_frames(dumps["xs"]))
+        moved = False
+        for fa, fu, fs in zip(full, unwrapped, scaled, strict=True):
+            image = np.column_stack([fa.columns[k] for k in ("ix", "iy", "iz")])
+            moved |= bool(np.any(image))
+            np.testing.assert_allclose(fu.positions, fa.positions + image @ fa.cell,
+                                       rtol=1e-5, atol=1e-4)  # %g: 6 digits
+            np.testing.assert_allclose(fs.positions, fa.positions, rtol=1e-5, atol=1e-4)
+            np.testing.assert_allclose(fs.radius, 0.4)
+        assert moved  # some atoms crossed a boundary, so xu differs from x
