@@ -59,7 +59,7 @@ def as_vector(x, name, n, *, nonnegative=True):
         raise ValueError(f"{name} must be finite, got NaN or inf")
     if nonnegative and arr.size and arr.min() < 0:
         bad = int(np.argmin(arr))
-        raise ValueError(f"{name} must be non-negative, got {arr[bad]!r} at index {bad}")
+        raise ValueError(f"{name} must be non-negative, got {float(arr[bad])!r} at index {bad}")
     return arr
 
 
