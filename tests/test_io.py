@@ -266,6 +266,25 @@ class TestAseAndMDAnalysisFiles:
                     np.testing.assert_allclose(fr.radius, at.arrays["radius"])
             assert [f.index for f in iter_frames(path, frames=slice(1, 3))] == [1, 2]
 
+    def test_ase_slab_with_zero_vector(self, tmp_path):
+        import ase
+        import ase.io
+
+        granularsap = pytest.importorskip("granularsap")
+        rng = np.random.default_rng(2)
+        a = ase.Atoms("Ar60", positions=rng.uniform(0, 6, (60, 3)),
+                      cell=[[6, 0, 0], [0, 6, 0], [0, 0, 0]], pbc=[True, True, False])
+        path = tmp_path / "slab.traj"
+        ase.io.write(path, a)
+        (fr,) = iter_frames(path)
+        np.testing.assert_array_equal(fr.pbc, [True, True, False])
+        assert fr.box is None and fr.cell is not None
+        radii = np.full(60, 0.6)
+        got = granularsap.sphere_contacts(fr.positions, radii, box=engine_cell(fr, 1.2))
+        want, _ = brute_image_pairs(fr.positions, 0.0, cell=np.diag([6.0, 6.0, 1.0]),
+                                    pbc=(True, True, False), radii=radii)
+        np.testing.assert_array_equal(sort_pairs(np.sort(got, axis=1)), sort_pairs(want))
+
     def test_dcd_with_topology(self, tmp_path):
         import MDAnalysis as mda
 

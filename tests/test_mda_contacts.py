@@ -66,6 +66,11 @@ class TestResults:
 
 
 class TestBackends:
+    def test_reexported_by_granularsap_mda(self):
+        import granularsap.mda
+
+        assert granularsap.mda.Contacts is Contacts
+
     def test_declared_parallelizable(self, universe):
         c = Contacts(universe.atoms, cutoff=1.0)
         assert c.parallelizable

@@ -107,8 +107,13 @@ class Frame:
 
     @property
     def box(self):
-        """MDAnalysis ``[lx, ly, lz, alpha, beta, gamma]`` of the cell, or None."""
-        return None if self.cell is None else cell_to_box(self.cell)
+        """MDAnalysis ``[lx, ly, lz, alpha, beta, gamma]`` of the cell, or None.
+
+        None too when a cell vector is zero (an ASE slab's non-periodic axis).
+        """
+        if self.cell is None or not np.all(np.linalg.norm(self.cell, axis=1) > 0):
+            return None
+        return cell_to_box(self.cell)
 
     def column(self, name):
         """A per-particle column by name; ``radius`` falls back to ``diameter / 2``."""

@@ -158,9 +158,12 @@ def _iter_ase(path, sub, frames, kwargs):
         arrays = atoms.arrays
         ids = np.asarray(arrays["id"], dtype=np.int64) if "id" in arrays else np.arange(n)
         cell = None
-        if atoms.cell.rank == 3:
-            cell = np.array(atoms.cell[:], dtype=np.float64)
-        pbc = np.asarray(atoms.pbc, dtype=bool) if cell is not None else np.zeros(3, bool)
+        pbc = np.asarray(atoms.pbc, dtype=bool)
+        full = np.array(atoms.cell[:], dtype=np.float64)
+        lengths = np.linalg.norm(full, axis=1)
+        if atoms.cell.rank == 3 or (pbc.any() and np.all(lengths[pbc] > 0)):
+            cell = full  # a slab's unused zero vector is fine: only periodic ones matter
+        pbc = pbc if cell is not None else np.zeros(3, bool)
         radius = None
         for key in ("radius", "radii"):
             if key in arrays:
