@@ -167,21 +167,6 @@ def _block_from_frames(batch, *, distances, clumps):
     return block
 
 
-def _concat_blocks(blocks):
-    """Concatenate schema blocks, re-basing the offsets."""
-    out = {}
-    for name in blocks[0]:
-        if name.endswith("_offset"):
-            parts, base = [np.zeros(1, np.int64)], 0
-            for b in blocks:
-                parts.append(b[name][1:] + base)
-                base += int(b[name][-1])
-            out[name] = np.concatenate(parts)
-        else:
-            out[name] = np.concatenate([b[name] for b in blocks])
-    return out
-
-
 def _write_block(f, block):
     for name, data in block.items():
         rows = max(1, min(len(data), 65536 if data.ndim == 1 else 32768))
@@ -189,15 +174,49 @@ def _write_block(f, block):
                          chunks=(rows, *data.shape[1:]), **_COMPRESSION)
 
 
-def _read_block(f):
-    out = {}
+def _assemble(h5py, paths, target, empty_block):
+    """Copy segment files into ``target`` one segment at a time (bounded memory).
 
-    def visit(name, obj):
-        if hasattr(obj, "shape"):
-            out[name] = obj[()]
-
-    f.visititems(visit)
-    return out
+    Offsets are re-based as they are copied; data sets get their final sizes
+    up front.  With no segments, ``empty_block`` gives the (empty) layout.
+    """
+    if not paths:
+        _write_block(target, empty_block)
+        return 0
+    totals, dtypes = {}, {}
+    for path in paths:
+        with h5py.File(path, "r") as f:
+            def visit(name, obj):
+                if hasattr(obj, "shape"):
+                    n = obj.shape[0] - (1 if name.endswith("_offset") else 0)
+                    totals[name] = totals.get(name, 0) + n
+                    dtypes[name] = (obj.dtype, obj.shape[1:])
+            f.visititems(visit)
+    for name, n in totals.items():
+        dtype, tail = dtypes[name]
+        n += 1 if name.endswith("_offset") else 0
+        rows = max(1, min(n, 65536 if not tail else 32768))
+        target.create_dataset(name, shape=(n, *tail), dtype=dtype, maxshape=(None, *tail),
+                              chunks=(rows, *tail), **_COMPRESSION)
+    pos = dict.fromkeys(totals, 0)
+    base = {}
+    n_frames = 0
+    for path in paths:
+        with h5py.File(path, "r") as f:
+            for name in totals:
+                data = f[name][()]
+                if name.endswith("_offset"):
+                    b = base.get(name, 0)
+                    if pos[name] == 0:
+                        target[name][0] = 0
+                    target[name][pos[name] + 1:pos[name] + len(data)] = data[1:] + b
+                    base[name] = b + int(data[-1])
+                    pos[name] += len(data) - 1
+                else:
+                    target[name][pos[name]:pos[name] + len(data)] = data
+                    pos[name] += len(data)
+            n_frames += len(f["frames/index"])
+    return n_frames
 
 
 class ContactsWriter:
@@ -345,15 +364,12 @@ class ContactsWriter:
         if timing is not None:
             self.set_timing(timing)
         self.commit()
-        blocks = []
-        for name, _ in self._segments:
-            with self.h5py.File(os.path.join(self.tmp, name), "r") as f:
-                blocks.append(_read_block(f))
+        paths = [os.path.join(self.tmp, name) for name, _ in self._segments]
         tmp = self.path + ".tmp"
         with self.h5py.File(tmp, "w") as f:
             _write_header(f, self.info, self.n_frames, complete=False)
-            _write_block(f, _concat_blocks(blocks) if blocks else
-                         _block_from_frames([], distances=self.distances, clumps=self.clumps))
+            _assemble(self.h5py, paths, f,
+                      _block_from_frames([], distances=self.distances, clumps=self.clumps))
             f.attrs["timing"] = json.dumps(self._timing, sort_keys=True)
             f.attrs["finished"] = _now()
             f.flush()
@@ -429,18 +445,12 @@ def _assemble_in_memory(directory, h5py):
         info = json.load(fh)
     names = sorted(n for n in os.listdir(directory)
                    if n.startswith("seg-") and n.endswith(".h5"))
-    blocks = []
-    for n in names:
-        with h5py.File(os.path.join(directory, n), "r") as f:
-            blocks.append(_read_block(f))
-    f = h5py.File(f"partial-{id(blocks)}.h5", "w", driver="core", backing_store=False)
-    n_frames = sum(len(b["frames/index"]) for b in blocks)
-    _write_header(f, info, n_frames, complete=False)
-    if blocks:
-        _write_block(f, _concat_blocks(blocks))
-    else:
-        _write_block(f, _block_from_frames([], distances=info["distances"],
-                                           clumps=info["clumps"]))
+    f = h5py.File(f"partial-{id(names)}.h5", "w", driver="core", backing_store=False)
+    _write_header(f, info, 0, complete=False)
+    n_frames = _assemble(h5py, [os.path.join(directory, n) for n in names], f,
+                         _block_from_frames([], distances=info["distances"],
+                                            clumps=info["clumps"]))
+    f.attrs["n_frames"] = np.int64(n_frames)
     return f
 
 
