@@ -83,6 +83,39 @@ class TestBundledData:
                                               cp[np.lexsort((cp[:, 1], cp[:, 0]))])
 
 
+class TestOtherFormats:
+    def test_ase_extxyz_partly_periodic(self, tmp_path):
+        import ase
+        import ase.io
+
+        from .oracles import brute_image_pairs
+
+        rng = np.random.default_rng(6)
+        images = []
+        for _ in range(3):
+            a = ase.Atoms("Ar40", positions=rng.uniform(0, 6, (40, 3)),
+                          cell=[[6, 0, 0], [1, 6, 0], [0, 0, 6]], pbc=[True, True, False])
+            a.set_array("radius", rng.uniform(0.3, 0.6, 40))
+            images.append(a)
+        xyz = tmp_path / "t.extxyz"
+        ase.io.write(xyz, images)
+        out = tmp_path / "x.h5"
+        assert main(["contacts", str(xyz), "-o", str(out), "--skin", "0.05", "-q"]) == 0
+        with ContactsFile(out) as cf:
+            assert cf.parameters["source_format"] == "ase"
+            for k, at in enumerate(images):
+                want, _ = brute_image_pairs(at.positions, 0.05, cell=at.cell[:], pbc=at.pbc,
+                                            radii=at.arrays["radius"])
+                np.testing.assert_array_equal(cf.pairs(k), want)  # ids are 0..n-1 here
+        out2 = tmp_path / "c.h5"
+        assert main(["contacts", str(xyz), "-o", str(out2), "--cutoff", "1.0",
+                     "--format", "ase:extxyz", "-q"]) == 0
+        with ContactsFile(out2) as cf:
+            want, _ = brute_image_pairs(images[2].positions, 1.0, cell=images[2].cell[:],
+                                        pbc=images[2].pbc)
+            np.testing.assert_array_equal(cf.pairs(2), want)
+
+
 class TestInfo:
     def test_text_summary_and_plot(self, tmp_path, capsys):
         dump = tmp_path / "s.dump"
