@@ -24,6 +24,12 @@ def jit(func):
     return numba.njit(**_OPTIONS)(func)
 
 
+def ijit(func):
+    """Decorator for small serial helpers of hot loops, inlined into their
+    callers at numba's IR level (no call overhead, no argument packing)."""
+    return numba.njit(inline="always", **_OPTIONS)(func)
+
+
 def pjit(func):
     """Decorator for parallel kernels (``numba.prange`` loops)."""
     return numba.njit(parallel=True, **_OPTIONS)(func)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._numba import jit
+from .._numba import ijit, jit
 from .bits import ALL, ONE, cttz
 
 NONE = -1
@@ -52,7 +52,7 @@ def clear(bits, off):
         bits[k] = np.uint64(0)
 
 
-@jit
+@ijit
 def ins(bits, off, x):
     """Insert leaf ``x`` (paper: S.ins)."""
     nlev = len(off) - 1
@@ -66,7 +66,7 @@ def ins(bits, off, x):
         pos >>= 6
 
 
-@jit
+@ijit
 def delete(bits, off, x):
     """Remove leaf ``x`` (paper: S.del)."""
     nlev = len(off) - 1
@@ -80,14 +80,14 @@ def delete(bits, off, x):
         pos >>= 6
 
 
-@jit
+@ijit
 def toggle(bits, off, x):
     """Flip leaf ``x`` at level 0 only; call ``rebuild`` before any query."""
     w = off[0] + (x >> 6)
     bits[w] ^= ONE << np.uint64(x & 63)
 
 
-@jit
+@ijit
 def succ(bits, off, x):
     """Smallest leaf ``>= x`` in the tree, or ``NONE`` (paper: succ, from x - 1).
 
@@ -113,7 +113,7 @@ def succ(bits, off, x):
     return NONE
 
 
-@jit
+@ijit
 def minimum(bits, off):
     """Smallest leaf or ``NONE`` (paper: S.min)."""
     top = off[len(off) - 2]
@@ -122,7 +122,7 @@ def minimum(bits, off):
     return succ(bits, off, 0)
 
 
-@jit
+@ijit
 def is_empty(bits, off):
     return bits[off[len(off) - 2]] == 0
 
@@ -169,7 +169,7 @@ def to_array(bits, off):
 # ---------------------------------------------------------------- interleaved
 
 
-@jit
+@ijit
 def ins_k(bits, off, k, b, x):
     """``ins`` on tree ``b`` of ``k`` interleaved trees."""
     nlev = len(off) - 1
@@ -183,7 +183,7 @@ def ins_k(bits, off, k, b, x):
         pos >>= 6
 
 
-@jit
+@ijit
 def delete_k(bits, off, k, b, x):
     """``delete`` on tree ``b`` of ``k`` interleaved trees."""
     nlev = len(off) - 1
@@ -197,7 +197,7 @@ def delete_k(bits, off, k, b, x):
         pos >>= 6
 
 
-@jit
+@ijit
 def succ_k(bits, off, k, b, x):
     """``succ`` on tree ``b`` of ``k`` interleaved trees."""
     nlev = len(off) - 1

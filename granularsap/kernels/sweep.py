@@ -29,7 +29,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .._numba import jit, pjit
+from .._numba import ijit, jit, pjit
 from . import succtree as st
 from .bits import ALL, cttz
 
@@ -232,7 +232,7 @@ def third_axis_bins(lower, upper, a2, kmax):
     return zmin, k / span, reach, k
 
 
-@jit
+@ijit
 def _bin(z, z0, inv_h, k):
     b = np.int64((z - z0) * inv_h)
     if b < 0:
@@ -242,7 +242,7 @@ def _bin(z, z0, inv_h, k):
     return b
 
 
-@jit
+@ijit
 def _route(e, n, info, delta):
     """Partitions an event must reach (Algorithm 4, lines 10, 16 and 18).
 
@@ -341,7 +341,7 @@ def gather_parallel(iy, n, lower, upper, a0, a2, info, br, z0, inv_h, k, delta,
     return True
 
 
-@jit
+@ijit
 def _test_word(word, w, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap):
     """Overlap-test every rank set in leaf ``word`` number ``w``."""
     tested = 0
@@ -362,16 +362,39 @@ def _test_word(word, w, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap):
     return cnt, tested
 
 
-@jit
+@ijit
+def _scan_summary(trees, k, b, leaf0, sum0, sw, s0, s1, w0, w1, first, last, base,
+                  xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap):
+    """The leaves flagged by summary word ``sw``, clipped to words ``[w0, w1]``."""
+    tested = 0
+    sword = trees[(sum0 + sw) * k + b]
+    if sw == s0:
+        sword &= ALL << np.uint64(w0 & 63)
+    if sw == s1:
+        sword &= ALL >> np.uint64(63 - (w1 & 63))
+    while sword != 0:
+        w = (sw << 6) + np.int64(cttz(sword))
+        word = trees[(leaf0 + w) * k + b]
+        if w == w0:
+            word &= first
+        if w == w1:
+            word &= last
+        cnt, t = _test_word(word, w, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap)
+        tested += t
+        sword &= sword - np.uint64(1)
+    return cnt, tested
+
+
+@ijit
 def _scan_range_k(trees, off, k, b, lo, hi, base, xlo, xhi, zlo, zhi, br, rinv, me,
                   out, cnt, cap):
     """Range query ``S ∩ [lo, hi)`` on tree ``b`` of ``k`` interleaved trees,
     with the overlap test of every rank found (Algorithm 4, lines 13-15).
 
     Rather than iterating ``succ`` (a climb and a descent per step), it walks
-    the level-1 summary bits covering ``[lo, hi)`` and, for each non-empty
-    leaf word they flag, the leaf's set bits: two flat loops, O(range / 4096
-    + words with hits).  Writes pairs ``(min, max)`` of object ids into
+    down from the level-2 words covering ``[lo, hi)`` to the non-empty
+    summary words they flag, then to the non-empty leaf words, then to their
+    set bits: flat loops, O(range / 262144 + words with hits).  Writes pairs ``(min, max)`` of object ids into
     ``out`` while ``cnt < cap`` and always counts.  Returns ``(cnt, tested)``.
     """
     tested = 0
@@ -388,23 +411,31 @@ def _scan_range_k(trees, off, k, b, lo, hi, base, xlo, xhi, zlo, zhi, br, rinv, 
     sum0 = off[1]
     s0 = w0 >> 6
     s1 = w1 >> 6
-    for sw in range(s0, s1 + 1):
-        sword = trees[(sum0 + sw) * k + b]
-        if sw == s0:
-            sword &= ALL << np.uint64(w0 & 63)
-        if sw == s1:
-            sword &= ALL >> np.uint64(63 - (w1 & 63))
-        while sword != 0:
-            w = (sw << 6) + np.int64(cttz(sword))
-            word = trees[(leaf0 + w) * k + b]
-            if w == w0:
-                word &= first
-            if w == w1:
-                word &= last
-            cnt, t = _test_word(word, w, base, xlo, xhi, zlo, zhi, br, rinv, me, out,
-                                cnt, cap)
+    if len(off) == 3:  # leaves and one summary level
+        for sw in range(s0, s1 + 1):
+            cnt, t = _scan_summary(trees, k, b, leaf0, sum0, sw, s0, s1, w0, w1, first,
+                                   last, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt,
+                                   cap)
             tested += t
-            sword &= sword - np.uint64(1)
+        return cnt, tested
+    # Deeper trees: level-2 words say which summary words are non-empty, and
+    # in sparse shards almost none are.
+    top0 = off[2]
+    t0 = s0 >> 6
+    t1 = s1 >> 6
+    for tw in range(t0, t1 + 1):
+        tword = trees[(top0 + tw) * k + b]
+        if tw == t0:
+            tword &= ALL << np.uint64(s0 & 63)
+        if tw == t1:
+            tword &= ALL >> np.uint64(63 - (s1 & 63))
+        while tword != 0:
+            sw = (tw << 6) + np.int64(cttz(tword))
+            cnt, t = _scan_summary(trees, k, b, leaf0, sum0, sw, s0, s1, w0, w1, first,
+                                   last, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt,
+                                   cap)
+            tested += t
+            tword &= tword - np.uint64(1)
     return cnt, tested
 
 
