@@ -188,7 +188,7 @@ def _radix_plain(ka, ia, kb, ib, lo, hi, count):
 
 
 #: Leading bits sorted by the LSD passes; ties in them are settled afterwards.
-TOP_BITS = 3 * RADIX_BITS
+TOP_BITS = 2 * RADIX_BITS
 
 
 @jit
