@@ -47,7 +47,7 @@ def coordination(out, dump):
 
     from granularsap.io import iter_frames
 
-    with h5py.File(out, "r") as f:  # plain h5py: the schema is documented in docs/io.md
+    with h5py.File(out, "r") as f:  # plain h5py: the schema is documented in README.md
         assert f.attrs["complete"] == 1
         steps = f["frames/step"][:]
         n_particles = f["frames/n_particles"][:]

@@ -4,7 +4,7 @@ For every frame of TRAJ, granularsap finds the pairs within --cutoff (or the
 sphere contacts d <= r_i + r_j + skin, radii from --radius-column) and each
 reference in --against does the same.  lammps: LAMMPS's own neighbour list
 through lammps_bridge (pair_style zero for a cutoff, a granular size list for
-radii), every candidate re-tested with d <= reach in float64 (docs/lammps.md
+radii), every candidate re-tested with d <= reach in float64 (README.md, "LAMMPS"
 says what LAMMPS counts).  mdanalysis: MDAnalysis.lib.distances.
 self_capped_distance, float32 inside; for radii its pairs within
 2 max(r) + skin, filtered with its own distances.

@@ -2,7 +2,7 @@
 
 :func:`iter_frames` reads LAMMPS text dumps (own reader) and anything ASE or
 MDAnalysis reads; :func:`compute_contacts` runs the engine over every frame
-and writes one HDF5 file (schema in ``docs/io.md`` and
+and writes one HDF5 file (schema in README.md and
 :mod:`granularsap.io.hdf5`); :func:`read_contacts` reads it back.
 """
 

@@ -1,6 +1,6 @@
 """The contacts HDF5 file: schema, interruption-safe writer, reader.
 
-Schema version 1 (also described in ``docs/io.md``; every name below is plain
+Schema version 1 (also described in README.md; every name below is plain
 HDF5, readable with h5py or any HDF5 tool, no granularsap needed)::
 
     /                        attributes
