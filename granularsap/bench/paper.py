@@ -355,6 +355,7 @@ def run_paper(args):
     densities = _listed(getattr(args, "density", None), float) or (
         [0.05, 0.35] if quick else list(DENSITIES))
     frames = getattr(args, "frames", None) or (10 if quick else 100)
+    cl_frames = getattr(args, "frames", None) or (40 if quick else 100)
     seed = getattr(args, "seed", 0) or 0
     json_path = getattr(args, "json", None) or "bench-paper.json"
     plot_path = getattr(args, "plot", None) or "bench-paper.png"
@@ -385,7 +386,6 @@ def run_paper(args):
             print(header + "\n" + rows[-1], flush=True)
     cl_n = 1 << 14 if quick else 1 << 19
     pl_side = 128 if quick else 750
-    cl_frames = 40 if quick else 100
     results["clustering"] = {}
     results["clustering"].update(clustering_experiment("ball", cl_n, cl_frames, threads, seed,
                                                        progress))
