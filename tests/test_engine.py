@@ -257,3 +257,25 @@ def test_coordinates_near_the_float_range(path, threads, parts):
     hi[3] = [1e308, 6, 1e308]
     pairs = _box_overlaps_path(lo, hi, path=path, n_threads=threads, partitions=parts)
     check_pairs(pairs, lo, hi)
+
+
+def test_error_swap_threshold():
+    with pytest.raises(ValueError, match=r"swap_threshold must be positive, got 0"):
+        SweepAndPrune(swap_threshold=0)
+
+
+def test_error_too_many_boxes(monkeypatch):
+    import granularsap.api as api
+
+    monkeypatch.setattr(api, "MAX_BOXES", 3)
+    with pytest.raises(ValueError, match=r"at most 3 boxes are supported, got 4"):
+        box_overlaps(np.zeros((4, 3)), np.ones((4, 3)))
+
+
+def test_nbytes_reports_working_memory():
+    rng = np.random.default_rng(2)
+    engine = SweepAndPrune()
+    lo, hi = random_boxes(rng, 5000)
+    engine.update(lo, hi)
+    assert 60 * 5000 < engine.nbytes < 400 * 5000
+    assert engine.staging_nbytes >= 16 * engine.stats["pairs"]

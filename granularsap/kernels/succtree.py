@@ -55,29 +55,13 @@ def clear(bits, off):
 @ijit
 def ins(bits, off, x):
     """Insert leaf ``x`` (paper: S.ins)."""
-    nlev = len(off) - 1
-    pos = x
-    for lev in range(nlev):
-        w = off[lev] + (pos >> 6)
-        was = bits[w]
-        bits[w] = was | (ONE << np.uint64(pos & 63))
-        if was != 0:
-            return
-        pos >>= 6
+    ins_k(bits, off, 1, 0, x)
 
 
 @ijit
 def delete(bits, off, x):
     """Remove leaf ``x`` (paper: S.del)."""
-    nlev = len(off) - 1
-    pos = x
-    for lev in range(nlev):
-        w = off[lev] + (pos >> 6)
-        now = bits[w] & ~(ONE << np.uint64(pos & 63))
-        bits[w] = now
-        if now != 0:
-            return
-        pos >>= 6
+    delete_k(bits, off, 1, 0, x)
 
 
 @ijit
@@ -94,23 +78,7 @@ def succ(bits, off, x):
     Climbs until a word holds a set bit at or after the current position (the
     lowest common ancestor), then descends along lowest set bits.
     """
-    nlev = len(off) - 1
-    pos = x
-    lev = 0
-    while lev < nlev:
-        w = pos >> 6
-        if off[lev] + w >= off[lev + 1]:
-            return NONE
-        word = bits[off[lev] + w] & (ALL << np.uint64(pos & 63))
-        if word != 0:
-            pos = (w << 6) + np.int64(cttz(word))
-            while lev > 0:
-                lev -= 1
-                pos = (pos << 6) + np.int64(cttz(bits[off[lev] + pos]))
-            return pos
-        pos = w + 1
-        lev += 1
-    return NONE
+    return succ_k(bits, off, 1, 0, x)
 
 
 @ijit

@@ -261,6 +261,18 @@ def _route(e, n, info, delta):
     return info[e - n, 0] // delta, 1, 0
 
 
+@ijit
+def _push(events, reg_start, reg_cap, reg_count, t, p, word, lu):
+    """Append one event to region ``(t, p)``; False if it is full (still counted)."""
+    c = reg_count[t, p]
+    reg_count[t, p] = c + 1
+    if c >= reg_cap[t, p]:
+        return False
+    events[reg_start[t, p] + c, 0] = word
+    events[reg_start[t, p] + c, 1] = lu
+    return True
+
+
 @pjit
 def gather_parallel(iy, n, lower, upper, a0, a2, info, br, z0, inv_h, k, delta,
                     reg_start, reg_cap, reg_count, events):
@@ -318,23 +330,13 @@ def gather_parallel(iy, n, lower, upper, a0, a2, info, br, z0, inv_h, k, delta,
             word = np.int64(info[i, 0]) | (np.int64(info[i, 3]) << 32) | flags | OWN
             if qa <= own and own <= qb:
                 word |= QUERY
-            c = reg_count[t, own]
-            if c < reg_cap[t, own]:
-                events[reg_start[t, own] + c, 0] = word
-                events[reg_start[t, own] + c, 1] = lu
-            else:
-                ok[t] = False
-            reg_count[t, own] = c + 1
+            fits = _push(events, reg_start, reg_cap, reg_count, t, own, word, lu)
             word = (word & ~OWN) | QUERY
             for p in range(qa, qb + 1):
                 if p != own:
-                    c = reg_count[t, p]
-                    if c < reg_cap[t, p]:
-                        events[reg_start[t, p] + c, 0] = word
-                        events[reg_start[t, p] + c, 1] = lu
-                    else:
-                        ok[t] = False
-                    reg_count[t, p] = c + 1
+                    fits &= _push(events, reg_start, reg_cap, reg_count, t, p, word, lu)
+            if not fits:
+                ok[t] = False
     for t in range(nchunks):
         if not ok[t]:
             return False
