@@ -396,8 +396,9 @@ def _scan_range_k(trees, off, k, b, lo, hi, base, xlo, xhi, zlo, zhi, br, rinv, 
     Rather than iterating ``succ`` (a climb and a descent per step), it walks
     down from the level-2 words covering ``[lo, hi)`` to the non-empty
     summary words they flag, then to the non-empty leaf words, then to their
-    set bits: flat loops, O(range / 262144 + words with hits).  Writes pairs ``(min, max)`` of object ids into
-    ``out`` while ``cnt < cap`` and always counts.  Returns ``(cnt, tested)``.
+    set bits: flat loops, O(range / 262144 + words with hits).  Writes pairs
+    ``(min, max)`` of object ids into ``out`` while ``cnt < cap`` and always
+    counts.  Returns ``(cnt, tested)``.
     """
     tested = 0
     if hi <= lo:
