@@ -10,9 +10,12 @@ Arguments, return types (``int64`` pairs of shape ``(k, 2)``, ``float64``
 distances of shape ``(k,)``), ``min_cutoff`` (exclusive) and ``max_cutoff``
 (inclusive) follow MDAnalysis.  Like MDAnalysis, coordinates and the box are
 rounded to float32 first (MDAnalysis's ``check_coords``) and the triclinic cell
-matrix is built the way ``triclinic_vectors`` builds it; distances are then
-computed in float64.  ``method`` and ``backend`` are accepted for signature
-compatibility and ignored: the search is always granularsap's Sweep and Prune.
+matrix is built the way ``triclinic_vectors`` builds it.  The search is always
+granularsap's Sweep and Prune, with the cutoff widened by 1e-5; when MDAnalysis is
+installed every candidate is then decided with the arithmetic of the method
+MDAnalysis would run (``method``, or MDAnalysis's own choice when it is None; see
+``granularsap._mda_arith``), so pairs at the cutoff agree with MDAnalysis too.
+``backend`` is accepted for signature compatibility and ignored.
 ``granularsap.mda.Contacts`` (the parallel ``AnalysisBase``) lives in
 ``granularsap.mda_analysis`` and is re-exported here on first access.
 
@@ -77,6 +80,37 @@ def _cutoffs(max_cutoff, min_cutoff):
     return max_cutoff, min_cutoff
 
 
+_WIDEN = 1e-5  # candidate search widening; see granularsap._mda_arith
+
+
+def _mda_box32(box):
+    """``(box32,)`` when MDAnalysis is importable (its arithmetic is then
+    reproduced at the cutoff), else None."""
+    try:
+        import MDAnalysis.lib.distances  # noqa: F401
+    except ImportError:
+        return None
+    return (None if box is None else np.asarray(box, dtype=np.float32),)
+
+
+def _decide_like_mdanalysis(ref, conf, a, b, dist, box32, max_cutoff, method):
+    """Re-decide candidates ``(ref[a], conf[b])`` with the arithmetic of the
+    MDAnalysis method that would run (granularsap._mda_arith)."""
+    from . import _mda_arith
+
+    ref32 = ref.astype(np.float32)
+    conf32 = ref32 if conf is None else conf.astype(np.float32)
+    chosen = _mda_arith.choose_method(len(ref32), None if conf is None else len(conf32),
+                                      max_cutoff, box32, ref32 if conf is None else
+                                      np.concatenate([ref32, conf32]), method)
+    decided = _mda_arith.decide(ref32, conf32, a, b, box32, max_cutoff, chosen)
+    if decided is None:  # pkdtree: decided inside scipy; keep float64 minimum image
+        keep = dist <= max_cutoff
+        return a[keep], b[keep], dist[keep]
+    d, keep = decided
+    return a[keep], b[keep], d[keep]
+
+
 def _finish(i, j, dist, min_cutoff, return_distances):
     if min_cutoff is not None:
         keep = dist > min_cutoff
@@ -103,7 +137,9 @@ def self_capped_distance(reference, max_cutoff, min_cutoff=None, box=None, metho
         Exclusive lower cutoff.
     box : (6,) array_like of float, optional
         ``[lx, ly, lz, alpha, beta, gamma]``; minimum image convention.
-    method, backend : str, optional
+    method : str, optional
+        MDAnalysis's method whose arithmetic decides pairs at the cutoff.
+    backend : str, optional
         Accepted for compatibility; ignored.
     return_distances : bool, optional
     n_threads : int, optional
@@ -130,9 +166,14 @@ def self_capped_distance(reference, max_cutoff, min_cutoff=None, box=None, metho
     max_cutoff, min_cutoff = _cutoffs(max_cutoff, min_cutoff)
     cell = _box(box)
     n_threads = check_n_threads(n_threads)
-    rad = np.full(len(pos), 0.5 * max_cutoff)
+    emulate = _mda_box32(box) if len(pos) > 1 else None
+    reach = max_cutoff * (1.0 + _WIDEN) if emulate is not None else max_cutoff
+    rad = np.full(len(pos), 0.5 * reach)
     a, b, _, dist, _ = _search(pos, rad, 0.0, cell, _PBC, n_threads=n_threads,
                                minimum_image="reduce", what="max_cutoff")
+    if emulate is not None:
+        a, b, dist = _decide_like_mdanalysis(pos, None, a, b, dist, emulate[0], max_cutoff,
+                                             method)
     return _finish(a, b, dist, min_cutoff, return_distances)
 
 
@@ -151,7 +192,9 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
     min_cutoff : float, optional
         Exclusive lower cutoff.
     box : (6,) array_like of float, optional
-    method, backend : str, optional
+    method : str, optional
+        MDAnalysis's method whose arithmetic decides pairs at the cutoff.
+    backend : str, optional
         Accepted for compatibility; ignored.
     return_distances : bool, optional
     n_threads : int, optional
@@ -184,13 +227,19 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
     # the smaller set gets boxes of half-width max_cutoff, the other set points
     # (zero-size boxes): a cross pair is in range iff d <= max_cutoff + 0, and the
     # larger set produces no pairs among itself in the broad phase
+    emulate = _mda_box32(box)
+    reach = max_cutoff * (1.0 + _WIDEN) if emulate is not None else max_cutoff
     pos = np.concatenate([ref, conf])
     rad = np.zeros(len(pos))
     if n <= len(conf):
-        rad[:n] = max_cutoff
+        rad[:n] = reach
     else:
-        rad[n:] = max_cutoff
+        rad[n:] = reach
     a, b, _, dist, _ = _search(pos, rad, 0.0, cell, _PBC, n_threads=n_threads,
                                minimum_image="reduce", what="max_cutoff", split=n,
-                               reach_max=max_cutoff)
-    return _finish(a, b - n, dist, min_cutoff, return_distances)
+                               reach_max=reach)
+    b = b - n
+    if emulate is not None:
+        a, b, dist = _decide_like_mdanalysis(ref, conf, a, b, dist, emulate[0], max_cutoff,
+                                             method)
+    return _finish(a, b, dist, min_cutoff, return_distances)
