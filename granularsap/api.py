@@ -129,6 +129,10 @@ class SweepAndPrune:
         self.max_bins = 64
         self._path = None  # "sequential" | "parallel" | None (choose by size/threads)
         self._partitions = None  # override of the number of partitions (tests)
+        #: Boxes are cubes around spheres: keep pairs whose inscribed spheres
+        #: (nearly) touch instead of every overlapping pair (a superset of the
+        #: exact sphere test that follows; see _sphere_candidates).
+        self._spheres = False
         self._n = -1
         self._layout = None
         self._bounds = {}
@@ -326,7 +330,8 @@ class SweepAndPrune:
                     events = self._events = self._events_extra
                 ok = sw.gather_parallel(self._iy, n, lower, upper, a0, a2, self._info,
                                         self._br, z0, inv_h, nbins, delta, reg_start,
-                                        self._reg_cap, self._reg_count, events)
+                                        self._reg_cap, self._reg_count, events,
+                                        self._spheres)
                 used = self._reg_count
                 self._reg_cap = used + used // 16 + 64
                 if ok:
@@ -341,7 +346,7 @@ class SweepAndPrune:
                 sw.pairing_parallel(events, reg_start, self._reg_count, n, self._br,
                                     self._rinv, self._trees_pair, self._off_part, nbins, z0,
                                     inv_h, reach, self._out, self._pcounts, self._ptested,
-                                    todo)
+                                    todo, self._spheres)
                 need = int(self._pcounts.max())
                 if need <= self._out.shape[1] // 2:
                     break
@@ -415,6 +420,19 @@ def _box_overlaps_path(lower, upper, *, path=None, n_threads=None, partitions=No
     engine = SweepAndPrune(axes=axes, n_threads=n_threads)
     engine._path = path
     engine._partitions = partitions
+    return engine.update(lower, upper)
+
+
+def _sphere_candidates(lower, upper, *, n_threads=None):
+    """Candidate pairs of spheres inscribed in cubic boxes, for an exact test.
+
+    Every pair of boxes whose inscribed spheres come within a relative 1e-9 of
+    touching, a subset of ``box_overlaps`` (the boxes' corners are skipped)
+    and a superset of the pairs an exact sphere test keeps when each box's
+    half-width carries a rounding guard.  Boxes must be cubes.
+    """
+    engine = SweepAndPrune(n_threads=n_threads)
+    engine._spheres = True
     return engine.update(lower, upper)
 
 

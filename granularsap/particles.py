@@ -23,7 +23,7 @@ import numpy as np
 from . import periodic
 from ._numba import num_threads
 from ._validate import as_coords, as_scalar, as_vector, check_n_threads
-from .api import box_overlaps
+from .api import _sphere_candidates, box_overlaps
 from .kernels import narrow
 
 __all__ = ["clump_contacts", "neighbor_pairs", "sphere_contacts"]
@@ -137,7 +137,8 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
     half_all = half_all[:, None]
     lower = np.ascontiguousarray(centres - half_all)
     upper = np.ascontiguousarray(centres + half_all)
-    cand = box_overlaps(lower, upper, n_threads=n_threads)
+    # cubes around spheres: candidates whose inscribed spheres (nearly) touch
+    cand = _sphere_candidates(lower, upper, n_threads=n_threads)
     cand = np.ascontiguousarray(cand, dtype=np.int64)
 
     with num_threads(n_threads) as threads:
