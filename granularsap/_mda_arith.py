@@ -100,9 +100,9 @@ def decide(ref32, conf32, a, b, box32, max_cutoff, method):
     under MDAnalysis method ``method``; ``None`` if the method is not emulated."""
     if method not in ("bruteforce", "nsgrid"):
         return None
-    p = ref32[a]
-    q = conf32[b]
     if box32 is None:
+        p = ref32[a]
+        q = conf32[b]
         if method == "nsgrid":
             # _nsgrid_capped(_self) shift the coordinates into a pseudo-box first
             if conf32 is ref32:
@@ -124,8 +124,12 @@ def decide(ref32, conf32, a, b, box32, max_cutoff, method):
 
     kind, bx = _box_kind(box32)
     if method == "nsgrid" or kind == "tri":
-        p = apply_PBC(p, box32).astype(np.float32)
-        q = apply_PBC(q, box32).astype(np.float32)
+        # wrapping is per coordinate: wrap each set once, then pick candidates
+        same = conf32 is ref32
+        ref32 = apply_PBC(ref32, box32).astype(np.float32)
+        conf32 = ref32 if same else apply_PBC(conf32, box32).astype(np.float32)
+    p = ref32[a]
+    q = conf32[b]
     dx = (q - p).astype(np.float64)
     if kind == "tri":
         dx = _tri_min_image(dx, bx)

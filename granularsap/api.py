@@ -174,7 +174,6 @@ class SweepAndPrune:
         self._hist = np.empty((parts, buckets), np.int64)
         self._starts = np.empty(buckets + 1, np.int64)
         self._counts = np.zeros(parts, np.int64)
-        self._tested = np.zeros(parts, np.int64)
         self._off_full = st.layout(n)
         self._trees_cand = np.zeros((parts, self._off_full[-1]), np.uint64)
         self._out = np.empty((parts, 0), np.int64)
@@ -280,14 +279,13 @@ class SweepAndPrune:
         t1 = time.perf_counter()
 
         # Candidate generation and pairing.
-        cap = self._capacity(n, parts)
         if path == "sequential":
             sw.candidates_sequential(self._ix, n, lower, upper, a0, a2, self._rank,
                                      self._rinv, self._lcand, self._ucand, self._br,
                                      self._trees_cand[0], self._off_full)
             t2 = time.perf_counter()
             cand_s = t2 - t1
-            self._out = self._grow(self._out, 1, cap)
+            self._out = self._grow(self._out, 1, self._capacity(n, 1))
             while True:
                 cnt, tested = sw.pairing_sequential(
                     self._iy, n, self._rank, self._rinv, self._lcand, self._ucand,
@@ -326,8 +324,7 @@ class SweepAndPrune:
                 need = int(flat[-1])
                 if need > events.shape[0]:
                     # Very long candidate ranges: more events than the scratch holds.
-                    self._events_extra = np.empty((need + need // 8, 2), np.int64)
-                    events = self._events = self._events_extra
+                    events = self._events = np.empty((need + need // 8, 2), np.int64)
                 ok = sw.gather_parallel(self._iy, n, lower, upper, a0, a2, self._info,
                                         self._br, z0, inv_h, nbins, delta, reg_start,
                                         self._reg_cap, self._reg_count, events,
@@ -339,8 +336,7 @@ class SweepAndPrune:
             stats["bins"] = nbins
             stats["pair_partitions"] = pparts
             stats["events"] = int(used.sum())
-            cap = self._capacity(n, pparts)
-            self._out = self._grow(self._out, pparts, cap)
+            self._out = self._grow(self._out, pparts, self._capacity(n, pparts))
             todo = np.ones(pparts, np.bool_)
             while True:
                 sw.pairing_parallel(events, reg_start, self._reg_count, n, self._br,

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import periodic
+from . import _mda_arith, periodic
 from ._validate import as_coords, as_scalar
 from .particles import _search
 
@@ -80,9 +80,6 @@ def _cutoffs(max_cutoff, min_cutoff):
     return max_cutoff, min_cutoff
 
 
-_WIDEN = 1e-5  # candidate search widening; see granularsap._mda_arith
-
-
 def _mda_box32(box):
     """``(box32,)`` when MDAnalysis is importable (its arithmetic is then
     reproduced at the cutoff), else None."""
@@ -96,8 +93,6 @@ def _mda_box32(box):
 def _decide_like_mdanalysis(ref, conf, a, b, dist, box32, max_cutoff, method):
     """Re-decide candidates ``(ref[a], conf[b])`` with the arithmetic of the
     MDAnalysis method that would run (granularsap._mda_arith)."""
-    from . import _mda_arith
-
     ref32 = ref.astype(np.float32)
     conf32 = ref32 if conf is None else conf.astype(np.float32)
     chosen = _mda_arith.choose_method(len(ref32), None if conf is None else len(conf32),
@@ -167,7 +162,7 @@ def self_capped_distance(reference, max_cutoff, min_cutoff=None, box=None, metho
     cell = _box(box)
     n_threads = check_n_threads(n_threads)
     emulate = _mda_box32(box) if len(pos) > 1 else None
-    reach = max_cutoff * (1.0 + _WIDEN) if emulate is not None else max_cutoff
+    reach = max_cutoff * (1.0 + _mda_arith.WIDEN) if emulate is not None else max_cutoff
     rad = np.full(len(pos), 0.5 * reach)
     a, b, _, dist, _ = _search(pos, rad, 0.0, cell, _PBC, n_threads=n_threads,
                                minimum_image="reduce", what="max_cutoff")
@@ -228,7 +223,7 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
     # (zero-size boxes): a cross pair is in range iff d <= max_cutoff + 0, and the
     # larger set produces no pairs among itself in the broad phase
     emulate = _mda_box32(box)
-    reach = max_cutoff * (1.0 + _WIDEN) if emulate is not None else max_cutoff
+    reach = max_cutoff * (1.0 + _mda_arith.WIDEN) if emulate is not None else max_cutoff
     pos = np.concatenate([ref, conf])
     rad = np.zeros(len(pos))
     if n <= len(conf):
