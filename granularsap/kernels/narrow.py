@@ -31,7 +31,7 @@ import math
 import numba
 import numpy as np
 
-from .._numba import jit, pjit
+from .._numba import ijit, jit, pjit
 
 #: candidates below which the serial kernels run (thread start-up dominates)
 PARALLEL_MIN = 16384
@@ -164,6 +164,19 @@ def _fill_parallel(n_chunks, offsets, cand, n_own, owner, gshift, nshift, keep, 
                     owner, gshift, nshift, keep, dist, want_shift, out_a, out_b, out_s, out_d)
 
 
+@ijit
+def _clump_distance(u, i, j, cell, shifted, t0, t1, t2):
+    """Distance from sphere ``i`` to sphere ``j`` shifted by cell image ``t``."""
+    dx = u[j, 0] - u[i, 0]
+    dy = u[j, 1] - u[i, 1]
+    dz = u[j, 2] - u[i, 2]
+    if shifted:
+        dx += t0 * cell[0, 0] + t1 * cell[1, 0] + t2 * cell[2, 0]
+        dy += t0 * cell[0, 1] + t1 * cell[1, 1] + t2 * cell[2, 1]
+        dz += t0 * cell[0, 2] + t1 * cell[1, 2] + t2 * cell[2, 2]
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
 @jit
 def _clump_count_range(t_lo, t_hi, ca, cb, ct, start, members, u, cell, radii, skin, counts):
     """Number of sphere contacts for each candidate clump pair (image ``ct``)."""
@@ -179,14 +192,7 @@ def _clump_count_range(t_lo, t_hi, ca, cb, ct, start, members, u, cell, radii, s
             i = members[x]
             for y in range(start[b], start[b + 1]):
                 j = members[y]
-                dx = u[j, 0] - u[i, 0]
-                dy = u[j, 1] - u[i, 1]
-                dz = u[j, 2] - u[i, 2]
-                if shifted:
-                    dx += t0 * cell[0, 0] + t1 * cell[1, 0] + t2 * cell[2, 0]
-                    dy += t0 * cell[0, 1] + t1 * cell[1, 1] + t2 * cell[2, 1]
-                    dz += t0 * cell[0, 2] + t1 * cell[1, 2] + t2 * cell[2, 2]
-                d = math.sqrt(dx * dx + dy * dy + dz * dz)
+                d = _clump_distance(u, i, j, cell, shifted, t0, t1, t2)
                 if d <= radii[i] + radii[j] + skin:
                     c += 1
         counts[t] = c
@@ -208,14 +214,7 @@ def _clump_fill_range(t_lo, t_hi, ca, cb, ct, start, members, u, cell, radii, sk
             i = members[x]
             for y in range(start[b], start[b + 1]):
                 j = members[y]
-                dx = u[j, 0] - u[i, 0]
-                dy = u[j, 1] - u[i, 1]
-                dz = u[j, 2] - u[i, 2]
-                if shifted:
-                    dx += t0 * cell[0, 0] + t1 * cell[1, 0] + t2 * cell[2, 0]
-                    dy += t0 * cell[0, 1] + t1 * cell[1, 1] + t2 * cell[2, 1]
-                    dz += t0 * cell[0, 2] + t1 * cell[1, 2] + t2 * cell[2, 2]
-                d = math.sqrt(dx * dx + dy * dy + dz * dz)
+                d = _clump_distance(u, i, j, cell, shifted, t0, t1, t2)
                 if d <= radii[i] + radii[j] + skin:
                     if i < j:
                         out_pairs[o, 0] = i
