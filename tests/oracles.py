@@ -36,6 +36,23 @@ def brute_box_overlaps(lower, upper):
     return _as_pair_array(out)
 
 
+def _image_ranges(pos, cell, pbc, reach_max):
+    """Integer image ranges per cell vector that hold every image within
+    ``reach_max`` of any point (generously: the points' span is added)."""
+    vol = abs(np.linalg.det(cell))
+    span = np.ptp(pos, axis=0).max() if len(pos) else 0.0
+    reps = []
+    for k in range(3):
+        if not pbc[k]:
+            reps.append(range(0, 1))
+            continue
+        other = np.cross(cell[(k + 1) % 3], cell[(k + 2) % 3])
+        width = vol / np.linalg.norm(other)
+        m = int(np.ceil((reach_max + 2 * span) / width)) + 1
+        reps.append(range(-m, m + 1))
+    return reps
+
+
 def brute_image_pairs(positions, cutoff, cell=None, pbc=(True, True, True), radii=None):
     """Pairs ``i < j`` with some periodic image of ``j`` within reach of ``i``.
 
@@ -52,17 +69,7 @@ def brute_image_pairs(positions, cutoff, cell=None, pbc=(True, True, True), radi
     shifts = [np.zeros(3)]
     if cell is not None:
         cell = np.asarray(cell, dtype=np.float64)
-        vol = abs(np.linalg.det(cell))
-        span = np.ptp(pos, axis=0).max() if n else 0.0
-        reps = []
-        for k in range(3):
-            if not pbc[k]:
-                reps.append(range(0, 1))
-                continue
-            other = np.cross(cell[(k + 1) % 3], cell[(k + 2) % 3])
-            width = vol / np.linalg.norm(other)
-            m = int(np.ceil((reach_max + 2 * span) / width)) + 1
-            reps.append(range(-m, m + 1))
+        reps = _image_ranges(pos, cell, pbc, reach_max)
         shifts = [a * cell[0] + b * cell[1] + c * cell[2]
                   for a in reps[0] for b in reps[1] for c in reps[2]]
     shifts = np.array(shifts)
@@ -93,17 +100,7 @@ def brute_full_image_list(positions, cutoff, cell=None, pbc=(True, True, True), 
     reps = [range(0, 1)] * 3
     if cell is not None:
         cell = np.asarray(cell, dtype=np.float64)
-        vol = abs(np.linalg.det(cell))
-        span = np.ptp(pos, axis=0).max() if n else 0.0
-        reps = []
-        for k in range(3):
-            if not pbc[k]:
-                reps.append(range(0, 1))
-                continue
-            other = np.cross(cell[(k + 1) % 3], cell[(k + 2) % 3])
-            width = vol / np.linalg.norm(other)
-            m = int(np.ceil((reach_max + 2 * span) / width)) + 1
-            reps.append(range(-m, m + 1))
+        reps = _image_ranges(pos, cell, pbc, reach_max)
     shifts = np.array([(a, b, c) for a in reps[0] for b in reps[1] for c in reps[2]],
                       dtype=np.int64)
     vecs = shifts @ (cell if cell is not None else np.zeros((3, 3)))
