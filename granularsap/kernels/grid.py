@@ -1,0 +1,552 @@
+"""Column sweep for particles: the broad phase and the Verlet narrow phase.
+
+About the algorithm
+-------------------
+Particles are points with a per-particle half range ``rad``; pair ``(a, b)``
+is in range iff ``d <= rad[a] + rad[b] + skin`` (float64, one ``sqrt``).
+
+*Coordinates.*  Everything is binned in fractional coordinates ``s = x H^-1``
+of the cell matrix ``H`` (rows are cell vectors; the identity for open
+boundaries).  Along a periodic axis ``s`` is wrapped to ``t = s - floor(s)``
+and the Cartesian position to ``w = x - floor(s) H`` (cell vectors subtracted
+one at a time).  Two points at distance ``d`` differ by at most ``d / w_c`` in
+fractional coordinate ``c``, ``w_c`` the perpendicular width of the cell
+across axis ``c`` (volume over the area of the opposite face), so a bin of
+fractional width ``B / w_c`` holds every partner within ``B`` in itself and
+its two neighbours, in triclinic cells too.
+
+*Columns.*  Axes 0 and 1 are cut into ``nb0 x nb1`` columns at least the
+largest pair range (plus the Verlet margin) wide; axis 2 is the sweep axis.
+Particles are stored column by column, sorted along ``t2`` inside each column
+(a stable counting sort by column over the previous build's order, then an
+insertion sort inside each column, which temporal coherence keeps close to
+linear; a fresh order falls back to a merge sort per column).  Positions,
+ranges and labels are gathered into that order, so the sweep streams through
+contiguous memory.  This is the multi-SaP of Tracy, Buss and Woods (2009) and
+Terdiman (2007): a Sweep and Prune (Algorithm 1's sweep, one axis) inside each
+cell of a spatial subdivision.
+
+*Sweep.*  For particle ``a`` the window along axis 2 is
+``|t2_b - t2_a| <= (rad[a] + max(rad) + skin + margin) / w_2``, found by
+binary search in each stencil column.  The stencil is half of the
+``(2 L0 + 1) x (2 L1 + 1)`` neighbourhood (offsets lexicographically
+positive) plus the column itself, where ``a`` looks only forward in sorted
+order; so each unordered pair, and each periodic image of it, is reported by
+exactly one particle and nothing is de-duplicated afterwards.  Periodic axes
+wrap the stencil (column offset -> column and lattice shift) and the window
+(``t2 + k`` for integer ``k``); a cell narrower than the range simply gives a
+stencil of more than one layer, so every image within range is found (the
+ASE convention) when self-images are asked for.
+
+*Verlet list.*  A build keeps every pair within range plus ``margin``: for
+each particle (in column order) the partner index and the lattice shift
+``S`` (three 10-bit fields of one int32).  While no particle has moved more
+than ``margin / 2`` since the build, every pair in range is in the list, and
+a frame only re-tests the list (``narrow_count`` / ``narrow_fill``) with the
+shift corrected by the image jumps ``m`` of the two particles since the
+build: ``S' = S - m_b + m_a``.
+
+*Arithmetic.*  The separation is ``(w_b - w_a) + S0 a + S1 b + S2 c``, the
+order of MDAnalysis's triclinic minimum image; negating it term by term
+gives the same squared norm bit for bit, so the distance of a pair does not
+depend on which end found it, and a Verlet frame reproduces a fresh build
+exactly.  A squared norm that overflows is recomputed with every term scaled
+by ``2**-600`` (exact), so pairs of points beyond 1e154 are decided exactly.
+
+Cost: O(n) for wrapping, sorting and gathering, O(candidates) for the
+sweep; candidates per pair found are about ``(3 B)^2 2 B / (2 (4/3) pi R^3)``
+for uniform points.  Parallel work is split into chunks of whole columns
+(build) or contiguous particle ranges (Verlet frames) whose boundaries depend
+only on the input, never on the thread count; each chunk writes into its own
+region, so no two threads share an output slot.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from .._numba import ijit, jit, pjit
+
+#: fractional coordinates at or beyond this magnitude cannot be wrapped
+#: meaningfully (the wrapped value keeps no significant bits)
+WRAP_LIMIT = 2.0 ** 52
+_OFF = 512  # bias of one 10-bit shift field
+_SCALE = 2.0 ** -600
+_BIG2 = 1e300
+
+
+@ijit
+def _encode(s0, s1, s2):
+    return ((s0 + _OFF) << 20) | ((s1 + _OFF) << 10) | (s2 + _OFF)
+
+
+@ijit
+def _decode(code):
+    return (code >> 20) - _OFF, ((code >> 10) & 1023) - _OFF, (code & 1023) - _OFF
+
+
+@ijit
+def _separation(w, a, b, cell, s0, s1, s2):
+    dx = w[b, 0] - w[a, 0]
+    dy = w[b, 1] - w[a, 1]
+    dz = w[b, 2] - w[a, 2]
+    if s0 != 0 or s1 != 0 or s2 != 0:
+        dx += s0 * cell[0, 0]
+        dy += s0 * cell[0, 1]
+        dz += s0 * cell[0, 2]
+        dx += s1 * cell[1, 0]
+        dy += s1 * cell[1, 1]
+        dz += s1 * cell[1, 2]
+        dx += s2 * cell[2, 0]
+        dy += s2 * cell[2, 1]
+        dz += s2 * cell[2, 2]
+    return dx, dy, dz
+
+
+@jit
+def _distance_scaled(w, a, b, cell, s0, s1, s2):
+    """The distance of ``_separation`` with every term scaled by ``2**-600``."""
+    k = _SCALE
+    dx = w[b, 0] * k - w[a, 0] * k
+    dy = w[b, 1] * k - w[a, 1] * k
+    dz = w[b, 2] * k - w[a, 2] * k
+    if s0 != 0 or s1 != 0 or s2 != 0:
+        dx += s0 * (cell[0, 0] * k)
+        dy += s0 * (cell[0, 1] * k)
+        dz += s0 * (cell[0, 2] * k)
+        dx += s1 * (cell[1, 0] * k)
+        dy += s1 * (cell[1, 1] * k)
+        dz += s1 * (cell[1, 2] * k)
+        dx += s2 * (cell[2, 0] * k)
+        dy += s2 * (cell[2, 1] * k)
+        dz += s2 * (cell[2, 2] * k)
+    return math.sqrt(dx * dx + dy * dy + dz * dz) / k
+
+
+@ijit
+def _distance(w, a, b, cell, s0, s1, s2):
+    dx, dy, dz = _separation(w, a, b, cell, s0, s1, s2)
+    d2 = dx * dx + dy * dy + dz * dz
+    if not d2 <= _BIG2:  # overflow (or inf/nan from an overflowing difference)
+        return _distance_scaled(w, a, b, cell, s0, s1, s2)
+    return math.sqrt(d2)
+
+
+# ----------------------------------------------------------------- wrapping
+
+
+@ijit
+def _wrap_one(x, i, hinv, cell, diag, pbc, t, k, w, j):
+    """Fractional ``t[j]``, wrap shift ``k[j]`` and wrapped ``w[j]`` of ``x[i]``.
+
+    Returns False when a periodic fractional coordinate is too large to wrap.
+    """
+    ok = True
+    for c in range(3):
+        if diag:
+            s = x[i, c] / cell[c, c]
+        else:
+            s = x[i, 0] * hinv[0, c] + x[i, 1] * hinv[1, c] + x[i, 2] * hinv[2, c]
+        if pbc[c]:
+            if not abs(s) < WRAP_LIMIT:
+                ok = False
+                s = 0.0
+            f = math.floor(s)
+            t[j, c] = s - f
+            k[j, c] = np.int64(f)
+        else:
+            t[j, c] = s
+            k[j, c] = 0
+    wx = x[i, 0]
+    wy = x[i, 1]
+    wz = x[i, 2]
+    for c in range(3):
+        kc = k[j, c]
+        if kc != 0:
+            wx -= kc * cell[c, 0]
+            wy -= kc * cell[c, 1]
+            wz -= kc * cell[c, 2]
+    w[j, 0] = wx
+    w[j, 1] = wy
+    w[j, 2] = wz
+    return ok
+
+
+@pjit
+def wrap(x, hinv, cell, diag, pbc, t, k, w):
+    """Wrap every particle (input order); returns the first bad row or -1."""
+    n = x.shape[0]
+    bad = np.full(n, False)
+    for i in numba.prange(n):
+        bad[i] = not _wrap_one(x, i, hinv, cell, diag, pbc, t, k, w, i)
+    for i in range(n):
+        if bad[i]:
+            return i
+    return -1
+
+
+@pjit
+def wrap_sorted(x, perm, hinv, cell, diag, pbc, t_build, full, n_chunks, t, k, w, m,
+                disp2):
+    """Wrap particles into column order and measure their motion since the build.
+
+    ``m[p]`` is the image jump of particle ``perm[p]`` since the build and
+    ``disp2[chunk]`` the largest squared displacement (minimum image along
+    periodic axes, Cartesian through the full cell matrix ``full``).
+    Returns the first bad input row or -1.
+    """
+    n = x.shape[0]
+    bad = np.full(n_chunks, -1, np.int64)
+    for ch in numba.prange(n_chunks):
+        lo = ch * n // n_chunks
+        hi = (ch + 1) * n // n_chunks
+        mx = 0.0
+        for p in range(lo, hi):
+            i = perm[p]
+            if not _wrap_one(x, i, hinv, cell, diag, pbc, t, k, w, p):
+                if bad[ch] < 0:
+                    bad[ch] = i
+            f0 = t[p, 0] - t_build[p, 0]
+            f1 = t[p, 1] - t_build[p, 1]
+            f2 = t[p, 2] - t_build[p, 2]
+            m0 = 0
+            m1 = 0
+            m2 = 0
+            if pbc[0]:
+                m0 = np.int64(math.floor(f0 + 0.5))
+                f0 -= m0
+            if pbc[1]:
+                m1 = np.int64(math.floor(f1 + 0.5))
+                f1 -= m1
+            if pbc[2]:
+                m2 = np.int64(math.floor(f2 + 0.5))
+                f2 -= m2
+            m[p, 0] = m0
+            m[p, 1] = m1
+            m[p, 2] = m2
+            dx = f0 * full[0, 0] + f1 * full[1, 0] + f2 * full[2, 0]
+            dy = f0 * full[0, 1] + f1 * full[1, 1] + f2 * full[2, 1]
+            dz = f0 * full[0, 2] + f1 * full[1, 2] + f2 * full[2, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if not d2 <= mx:  # also catches nan
+                mx = d2 if d2 == d2 else np.inf
+        disp2[ch] = mx
+    for ch in range(n_chunks):
+        if bad[ch] >= 0:
+            return bad[ch]
+    return -1
+
+
+# ------------------------------------------------------------------ sorting
+
+
+@jit
+def columns_of(t, pbc, lo, inv_f, nb0, nb1, col):
+    """Column index of every particle from its fractional coordinates."""
+    n = t.shape[0]
+    for i in range(n):
+        b0 = int(math.floor((t[i, 0] - lo[0]) * inv_f[0]))
+        b1 = int(math.floor((t[i, 1] - lo[1]) * inv_f[1]))
+        b0 = min(max(b0, 0), nb0 - 1)
+        b1 = min(max(b1, 0), nb1 - 1)
+        col[i] = b0 * nb1 + b1
+
+
+@jit
+def counting_sort(col, prev, ncol, start, perm):
+    """Stable counting sort of ``prev``'s order by column; ``start`` (ncol + 1)."""
+    n = prev.shape[0]
+    for c in range(ncol + 1):
+        start[c] = 0
+    for i in range(n):
+        start[col[i] + 1] += 1
+    for c in range(ncol):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    for r in range(n):
+        i = prev[r]
+        c = col[i]
+        perm[fill[c]] = i
+        fill[c] += 1
+
+
+@pjit
+def sort_columns(start, ncol, perm, key, fresh):
+    """Sort every column of ``perm`` by ``key`` (insertion sort; merge sort if fresh
+    or if the insertion sort would move too much)."""
+    for c in numba.prange(ncol):
+        lo = start[c]
+        hi = start[c + 1]
+        m = hi - lo
+        if m < 2:
+            continue
+        done = False
+        if not fresh:
+            budget = 8 * m + 64
+            moves = 0
+            done = True
+            for p in range(lo + 1, hi):
+                v = perm[p]
+                kv = key[v]
+                q = p - 1
+                while q >= lo and key[perm[q]] > kv:
+                    perm[q + 1] = perm[q]
+                    q -= 1
+                    moves += 1
+                perm[q + 1] = v
+                if moves > budget:
+                    done = False
+                    break
+        if not done:
+            seg = perm[lo:hi].copy()
+            vals = np.empty(m, np.float64)
+            for p in range(m):
+                vals[p] = key[seg[p]]
+            order = np.argsort(vals, kind="mergesort")
+            for p in range(m):
+                perm[lo + p] = seg[order[p]]
+
+
+@pjit
+def gather(perm, t, w, rad, label, ts, ws, rs, ls, use_label):
+    """Gather fractional and wrapped positions, ranges and labels in column order."""
+    n = perm.shape[0]
+    for p in numba.prange(n):
+        i = perm[p]
+        for c in range(3):
+            ts[p, c] = t[i, c]
+            ws[p, c] = w[i, c]
+        rs[p] = rad[i]
+        if use_label:
+            ls[p] = label[i]
+
+
+# -------------------------------------------------------------------- build
+
+
+@jit
+def _lower_bound(arr, lo, hi, v):
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if arr[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@ijit
+def _keep(w, p, q, cell, s0, s1, s2, rs, ls, use_label, self_images, reach):
+    if p == q:
+        if not self_images:
+            return False
+    if use_label and ls[p] == ls[q]:
+        return False
+    d = _distance(w, p, q, cell, s0, s1, s2)
+    return d <= rs[p] + rs[q] + reach
+
+
+@jit
+def _build_chunk(c_lo, c_hi, start, nb0, nb1, pbc, ts, ws, rs, ls, use_label, cell, stencil,
+                 rmax, reach, inv_w2, self_images, vstart, vstop, vb, vs, base, cap):
+    """Sweep the columns ``[c_lo, c_hi)``; writes at most ``cap`` entries from
+    ``base``; returns (entries needed, candidates tested)."""
+    pos = 0
+    tested = 0
+    tz = ts[:, 2]
+    p2 = pbc[2]
+    for col in range(c_lo, c_hi):
+        b0 = col // nb1
+        b1 = col - b0 * nb1
+        lo_c = start[col]
+        hi_c = start[col + 1]
+        for p in range(lo_c, hi_c):
+            vstart[p] = base + min(pos, cap)
+            tp = tz[p]
+            delta = (rs[p] + rmax + reach) * inv_w2
+            # the column itself: forward in sorted order (and over the periodic wrap)
+            q = p + 1
+            k = 0
+            while True:
+                if q == hi_c:
+                    if not p2:
+                        break
+                    q = lo_c
+                    k += 1
+                if tz[q] + k - tp > delta:
+                    break
+                tested += 1
+                if _keep(ws, p, q, cell, 0, 0, k, rs, ls, use_label, self_images, reach):
+                    if pos < cap:
+                        vb[base + pos] = q
+                        vs[base + pos] = _encode(0, 0, k)
+                    pos += 1
+                q += 1
+            # half stencil of neighbouring columns
+            for o in range(stencil.shape[0]):
+                c0 = b0 + stencil[o, 0]
+                c1 = b1 + stencil[o, 1]
+                s0 = 0
+                s1 = 0
+                if pbc[0]:
+                    s0 = c0 // nb0
+                    c0 -= s0 * nb0
+                elif c0 < 0 or c0 >= nb0:
+                    continue
+                if pbc[1]:
+                    s1 = c1 // nb1
+                    c1 -= s1 * nb1
+                elif c1 < 0 or c1 >= nb1:
+                    continue
+                col2 = c0 * nb1 + c1
+                lo2 = start[col2]
+                hi2 = start[col2 + 1]
+                if lo2 == hi2:
+                    continue
+                lo_v = tp - delta
+                hi_v = tp + delta
+                if p2:
+                    k_lo = int(math.floor(lo_v)) - 1
+                    k_hi = int(math.floor(hi_v))
+                else:
+                    k_lo = 0
+                    k_hi = 0
+                for k in range(k_lo, k_hi + 1):
+                    q = _lower_bound(tz, lo2, hi2, lo_v - k)
+                    top = hi_v - k
+                    while q < hi2 and tz[q] <= top:
+                        tested += 1
+                        if _keep(ws, p, q, cell, s0, s1, k, rs, ls, use_label, self_images,
+                                 reach):
+                            if pos < cap:
+                                vb[base + pos] = q
+                                vs[base + pos] = _encode(s0, s1, k)
+                            pos += 1
+                        q += 1
+            vstop[p] = base + min(pos, cap)
+    return pos, tested
+
+
+@pjit
+def build(chunk_cols, start, nb0, nb1, pbc, ts, ws, rs, ls, use_label, cell, stencil, rmax,
+          reach, inv_w2, self_images, vstart, vstop, vb, vs, reg_start, reg_cap, todo,
+          need, tested):
+    """``_build_chunk`` for every chunk marked in ``todo``; ``need[c]`` entries."""
+    n_chunks = chunk_cols.shape[0] - 1
+    for c in numba.prange(n_chunks):
+        if not todo[c]:
+            continue
+        need[c], tested[c] = _build_chunk(
+            chunk_cols[c], chunk_cols[c + 1], start, nb0, nb1, pbc, ts, ws, rs, ls,
+            use_label, cell, stencil, rmax, reach, inv_w2, self_images, vstart, vstop, vb,
+            vs, reg_start[c], reg_cap[c])
+
+
+# ------------------------------------------------------------ Verlet frames
+
+
+@ijit
+def _entry(w, p, q, code, m, use_m, cell):
+    s0, s1, s2 = _decode(code)
+    if use_m:
+        s0 = s0 - m[q, 0] + m[p, 0]
+        s1 = s1 - m[q, 1] + m[p, 1]
+        s2 = s2 - m[q, 2] + m[p, 2]
+    return s0, s1, s2
+
+
+@pjit
+def narrow_count(chunk_rows, vstart, vstop, vb, vs, ws, m, use_m, rs, skin, cell, strict,
+                 counts):
+    """Pairs in range per chunk of rows (pass 1 of a frame)."""
+    n_chunks = chunk_rows.shape[0] - 1
+    for c in numba.prange(n_chunks):
+        cnt = 0
+        for p in range(chunk_rows[c], chunk_rows[c + 1]):
+            for e in range(vstart[p], vstop[p]):
+                q = vb[e]
+                s0, s1, s2 = _entry(ws, p, q, vs[e], m, use_m, cell)
+                d = _distance(ws, p, q, cell, s0, s1, s2)
+                thr = rs[p] + rs[q] + skin
+                if d < thr or (d == thr and not strict):
+                    cnt += 1
+        counts[c] = cnt
+
+
+@pjit
+def narrow_fill(chunk_rows, offsets, vstart, vstop, vb, vs, ws, m, use_m, rs, skin, cell,
+                strict, perm, kw, want_d, want_vec, want_shift, out_p, out_d, out_v, out_s):
+    """Write each chunk's pairs from ``offsets[c]`` (pass 2 of a frame).
+
+    Rows are ``(i, j)`` original indices with ``i < j``; the vector and shift
+    are from ``i`` to ``j``, the shift in terms of the caller's positions
+    (``D = x[j] - x[i] + S @ cell``; ``kw`` is the current wrap shift).
+    """
+    n_chunks = chunk_rows.shape[0] - 1
+    for c in numba.prange(n_chunks):
+        o = offsets[c]
+        for p in range(chunk_rows[c], chunk_rows[c + 1]):
+            ip = perm[p]
+            for e in range(vstart[p], vstop[p]):
+                q = vb[e]
+                s0, s1, s2 = _entry(ws, p, q, vs[e], m, use_m, cell)
+                d = _distance(ws, p, q, cell, s0, s1, s2)
+                thr = rs[p] + rs[q] + skin
+                if not (d < thr or (d == thr and not strict)):
+                    continue
+                iq = perm[q]
+                flip = iq < ip
+                if flip:
+                    out_p[o, 0] = iq
+                    out_p[o, 1] = ip
+                else:
+                    out_p[o, 0] = ip
+                    out_p[o, 1] = iq
+                if want_d:
+                    out_d[o] = d
+                if want_vec:
+                    dx, dy, dz = _separation(ws, p, q, cell, s0, s1, s2)
+                    if flip:
+                        dx = -dx
+                        dy = -dy
+                        dz = -dz
+                    out_v[o, 0] = dx
+                    out_v[o, 1] = dy
+                    out_v[o, 2] = dz
+                if want_shift:
+                    # w = x - k @ cell:  D = x_q - x_p + (S - k_q + k_p) @ cell
+                    u0 = s0 - kw[q, 0] + kw[p, 0]
+                    u1 = s1 - kw[q, 1] + kw[p, 1]
+                    u2 = s2 - kw[q, 2] + kw[p, 2]
+                    if flip:
+                        u0 = -u0
+                        u1 = -u1
+                        u2 = -u2
+                    out_s[o, 0] = u0
+                    out_s[o, 1] = u1
+                    out_s[o, 2] = u2
+                o += 1
+
+
+@jit
+def csr_from_pairs(n, pairs, dist, want_d, offsets, col, cd):
+    """Half list by row: ``offsets`` (n + 1), partners ``col`` and distances ``cd``
+    of each ``i`` (rows in increasing ``i``, partners in pair order)."""
+    k = pairs.shape[0]
+    for i in range(n + 1):
+        offsets[i] = 0
+    for t in range(k):
+        offsets[pairs[t, 0] + 1] += 1
+    for i in range(n):
+        offsets[i + 1] += offsets[i]
+    fill = offsets[:-1].copy()
+    for t in range(k):
+        i = pairs[t, 0]
+        o = fill[i]
+        col[o] = pairs[t, 1]
+        if want_d:
+            cd[o] = dist[t]
+        fill[i] = o + 1

@@ -1,0 +1,617 @@
+"""Stateful neighbour and contact searches for particles over a sequence of frames.
+
+:class:`NeighborSearch` (pairs with ``d <= cutoff``) and :class:`ContactSearch`
+(pairs with ``d <= r_i + r_j + skin``, optional rigid-clump labels) are the
+engine every particle function of granularsap goes through: the one-shot
+functions (``neighbor_pairs``, ``sphere_contacts``, ``clump_contacts``), the
+MDAnalysis and ASE drop-ins, the trajectory pipeline and the benchmark are
+conveniences over them.
+
+Between calls a search keeps what the frames allow (see ``kernels/grid.py``
+for the algorithm):
+
+* every buffer: wrapped positions, the column order, the Verlet list and the
+  output arrays are allocated once and reused while the particle count and
+  the output size allow;
+* the column order of the last build: the next build sorts from it, so a
+  frame whose particles moved a little sorts in close to linear time;
+* a Verlet list: the pairs within the range plus ``rebuild_margin``.  While
+  no particle has moved more than ``rebuild_margin / 2`` since the list was
+  built (and the cell, the particle count, the radii and the labels are the
+  same), a frame only re-tests the list.  This is the "skin" of LAMMPS's
+  ``neighbor`` command and of ASE's ``NeighborList``; it is called
+  ``rebuild_margin`` here because ``skin`` already means the contact
+  distance added to ``r_i + r_j``.
+
+Every frame's answer equals a fresh one-shot call exactly: the same pair set
+and the same float64 distances, bit for bit, whether the frame rebuilt or not
+and whatever the thread count.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from . import periodic
+from ._numba import num_threads
+from ._validate import as_coords, as_scalar, as_vector, check_n_threads
+from .kernels import grid
+
+__all__ = ["ContactSearch", "NeighborSearch"]
+
+_QUANTITIES = "Pijd DS".replace(" ", "")
+_LAYOUTS = ("pairs", "csr")
+_IMAGES = ("minimum", "all")
+#: relative guard on the Verlet range against rounding (the exact test decides)
+_GUARD = 64 * np.finfo(np.float64).eps
+#: particles per chunk of parallel work (chunk boundaries never depend on threads)
+_CHUNK = 2048
+_MAX_CHUNKS = 1024
+_MAX_BINS = 1 << 16
+#: below this many particles one thread runs (a parallel region costs more)
+_PARALLEL_MIN = 20000
+
+
+def _check_quantities(quantities):
+    if not isinstance(quantities, str) or not quantities:
+        raise TypeError(f"quantities must be a non-empty string such as 'Pd' or 'ijd', "
+                        f"got {quantities!r}")
+    bad = [q for q in quantities if q not in _QUANTITIES]
+    if bad:
+        raise ValueError(f"unknown quantity {bad[0]!r} in quantities {quantities!r}; choose "
+                         "from 'P' (pairs (k, 2)), 'i', 'j', 'd' (distance), "
+                         "'D' (vector from i to j), 'S' (lattice shift)")
+    return quantities
+
+
+def _resolve_cell(box, pbc):
+    """(cell for distances, full matrix, pbc) of ``box`` and ``pbc``."""
+    cell_obj = None
+    try:
+        from .cell import Cell
+    except ImportError:  # pragma: no cover - during the move to Cell
+        Cell = None
+    if Cell is not None and isinstance(box, Cell):
+        cell_obj = box
+    if cell_obj is not None:
+        pbc_arr = cell_obj.pbc.copy() if pbc is None else periodic.as_pbc(pbc)
+        if not pbc_arr.any():
+            return None, None, np.zeros(3, bool)
+        full = np.ascontiguousarray(cell_obj.full_matrix, dtype=np.float64)
+        return full, full, pbc_arr
+    if box is None:
+        if pbc is not None and periodic.as_pbc(pbc).any():
+            raise ValueError("pbc asks for periodic axes but box is None; give the cell")
+        return None, None, np.zeros(3, bool)
+    pbc_arr = np.ones(3, bool) if pbc is None else periodic.as_pbc(pbc)
+    full = periodic.as_cell(box, pbc=pbc_arr)
+    if not pbc_arr.any():
+        return None, None, pbc_arr
+    return np.ascontiguousarray(full, dtype=np.float64), full, pbc_arr
+
+
+class _Search:
+    """What NeighborSearch and ContactSearch share: state, rebuilds, outputs."""
+
+    def __init__(self, *, rebuild_margin, quantities, layout, n_threads, periodic_images,
+                 include_cutoff):
+        self.rebuild_margin = as_scalar(rebuild_margin, "rebuild_margin")
+        self.quantities = _check_quantities(quantities)
+        if layout not in _LAYOUTS:
+            raise ValueError(f"layout must be one of {', '.join(map(repr, _LAYOUTS))}, "
+                             f"got {layout!r}")
+        self.layout = layout
+        if periodic_images not in _IMAGES:
+            raise ValueError(f"periodic_images must be 'minimum' or 'all', got "
+                             f"{periodic_images!r}")
+        self.periodic_images = periodic_images
+        if not isinstance(include_cutoff, (bool, np.bool_)):
+            raise TypeError(f"include_cutoff must be True or False, got {include_cutoff!r}")
+        self.include_cutoff = bool(include_cutoff)
+        self.n_threads = check_n_threads(n_threads)
+        self.stats = {}
+        self._frames = 0
+        self._rebuilds = 0
+        self._key = None
+        self._n = -1
+        self._out_cap = 0
+        self._perm = None
+        self._vcap = None
+
+    # ------------------------------------------------------------- buffers
+    def _alloc_particles(self, n):
+        if self._n == n:
+            return
+        self._n = n
+        self._t = np.empty((n, 3))
+        self._k = np.empty((n, 3), np.int64)
+        self._w = np.empty((n, 3))
+        self._ts = np.empty((n, 3))
+        self._ws = np.empty((n, 3))
+        self._rs = np.empty(n)
+        self._ls = np.empty(n, np.int64)
+        self._m = np.zeros((n, 3), np.int64)
+        self._ks = np.zeros((n, 3), np.int64)
+        self._col = np.empty(n, np.int64)
+        self._perm = None
+        self._perm_buf = np.empty(n, np.int64)
+        self._vstart = np.empty(n, np.int64)
+        self._vstop = np.empty(n, np.int64)
+        self._vcap = None
+
+    def _alloc_output(self, total):
+        q = self.quantities
+        if total <= self._out_cap and hasattr(self, "_out_p"):
+            return
+        cap = max(1024, total + total // 8)
+        self._out_cap = cap
+        self._out_p = np.empty((cap, 2), np.int64)
+        self._out_d = np.empty(cap if "d" in q else 0)
+        self._out_v = np.empty((cap if "D" in q else 0, 3))
+        self._out_s = np.empty((cap if "S" in q else 0, 3), np.int64)
+
+    @property
+    def nbytes(self):
+        """Bytes of working memory the search keeps between frames (all buffers,
+        the output buffers included)."""
+        total = 0
+        for value in vars(self).values():
+            if isinstance(value, np.ndarray):
+                total += value.nbytes
+        return total
+
+    # --------------------------------------------------------------- frame
+    def _frame(self, positions, rad, skin, box, pbc, labels, copy):
+        t_start = time.perf_counter()
+        cell, full, pbc_arr = _resolve_cell(box, pbc)
+        n = len(positions)
+        minimum = self.periodic_images == "minimum"
+        rmax = float(rad.max()) if n else 0.0
+        reach_max = 2.0 * rmax + skin
+        periodic_run = cell is not None
+        if periodic_run and minimum:
+            widths = periodic.perpendicular_widths(full)
+            for c in np.flatnonzero(pbc_arr):
+                if reach_max > 0.5 * widths[c] * (1.0 + 1e-12):
+                    raise ValueError(
+                        f"{self._what} {reach_max:.17g} exceeds half the smallest "
+                        f"perpendicular cell width {0.5 * widths[c]:.17g} (width "
+                        f"{widths[c]:.17g} across cell vector {c}); several periodic images "
+                        "of a pair would be in range. Use a larger cell (replicate it) or a "
+                        "smaller range, or periodic_images='all' to get every image with "
+                        "its shift")
+        threads = self.n_threads
+        if threads is None and n < _PARALLEL_MIN:
+            threads = 1
+        with num_threads(threads) as threads:
+            result = self._run(positions, rad, skin, cell, full, pbc_arr, labels, n, rmax,
+                               reach_max, minimum, threads, t_start)
+        if copy:
+            result = tuple(np.array(r) for r in result)
+        return result[0] if len(result) == 1 else result
+
+    def _run(self, positions, rad, skin, cell, full, pbc, labels, n, rmax, reach_max, minimum,
+             threads, t_start):
+        self._frames += 1
+        cell_k = cell if cell is not None else np.eye(3)
+        full_k = full if full is not None else np.eye(3)
+        diag = not np.any(full_k - np.diag(np.diag(full_k)))
+        hinv = np.ascontiguousarray(np.linalg.inv(full_k)) if not diag else np.eye(3)
+        key = (n, cell_k.tobytes(), pbc.tobytes(), skin, minimum, self.include_cutoff,
+               labels is not None)
+        self._alloc_particles(n)
+        margin = self.rebuild_margin
+        reason = None
+        if self._key != key:
+            reason = "first frame" if self._key is None else (
+                "particle count changed" if self._key[0] != n else "cell or settings changed")
+        elif not np.array_equal(rad, self._rad):
+            reason = "radii changed"
+        elif labels is not None and not np.array_equal(labels, self._labels):
+            reason = "clump ids changed"
+        elif margin == 0.0:
+            reason = "no rebuild margin"
+        times = {}
+        use_m = False
+        max_disp = None
+        t0 = time.perf_counter()
+        if reason is None and n:
+            n_chunks = len(self._chunk_rows) - 1
+            disp2 = np.empty(n_chunks)
+            bad = grid.wrap_sorted(positions, self._perm, hinv, cell_k, diag, pbc, self._ts,
+                                   full_k, n_chunks, self._t, self._ks, self._ws, self._m,
+                                   disp2)
+            self._raise_bad(bad, positions, pbc)
+            max_disp = math.sqrt(float(disp2.max()))
+            if max_disp > 0.5 * margin:
+                reason = f"a particle moved {max_disp:.6g} > rebuild_margin / 2"
+            else:
+                use_m = True
+        times["wrap"] = time.perf_counter() - t0
+        tested = None
+        if reason is not None:
+            tested = self._build(positions, rad, skin, cell_k, full_k, hinv, diag, pbc, labels,
+                                 n, rmax, reach_max, minimum, key, times)
+            self._rebuilds += 1
+        t0 = time.perf_counter()
+        total = self._narrow(skin, cell_k, use_m)
+        if (cell is not None and minimum and total
+                and 2.0 * reach_max >= periodic.perpendicular_widths(full_k)[pbc].min()
+                * (1.0 - 1e-9)):
+            total = self._dedup(total)
+        times["narrow"] = time.perf_counter() - t0
+        result = self._results(total)
+        times["total"] = time.perf_counter() - t_start
+        self.stats = {
+            "frame": self._frames, "n": n, "threads": threads, "path": "column-sweep",
+            "rebuilt": reason is not None, "reason": reason or "within the rebuild margin",
+            "rebuilds": self._rebuilds, "max_displacement": max_disp,
+            "verlet_entries": int(self._vneed.sum()) if n else 0,
+            "candidates_tested": tested, "pairs": total, "seconds": times,
+            "columns": self._grid_shape,
+        }
+        return result
+
+    def _raise_bad(self, bad, positions, pbc):
+        if bad >= 0:
+            raise ValueError(
+                f"positions row {bad} ({positions[bad].tolist()}) lies about "
+                f"{grid.WRAP_LIMIT:.3g} cell lengths or more outside the cell along a "
+                "periodic axis: wrapping it into the cell would keep no significant digit. "
+                "Give coordinates within 2**52 cell lengths of the cell")
+
+    def _build(self, positions, rad, skin, cell, full, hinv, diag, pbc, labels, n, rmax,
+               reach_max, minimum, key, times):
+        t0 = time.perf_counter()
+        self._key = key
+        self._rad = rad.copy()
+        self._labels = None if labels is None else labels.copy()
+        self._m[:] = 0
+        if n == 0:
+            self._chunk_rows = np.zeros(1, np.int64)
+            self._vneed = np.zeros(0, np.int64)
+            self._grid_shape = (0, 0)
+            self._perm = np.empty(0, np.int64)
+            times["sort"] = times["build"] = 0.0
+            return 0
+        bad = grid.wrap(positions, hinv, cell, diag, pbc, self._t, self._k, self._w)
+        self._raise_bad(bad, positions, pbc)
+        t, w = self._t, self._w
+        scale = float(np.abs(w).max()) + reach_max + self.rebuild_margin
+        guard = _GUARD * scale + np.finfo(np.float64).tiny
+        reach = skin + self.rebuild_margin + guard
+        bin_range = 2.0 * rmax + reach + guard
+        widths = periodic.perpendicular_widths(full)
+        lo = np.zeros(3)
+        span = np.ones(3)
+        for c in range(3):
+            if not pbc[c]:
+                lo[c] = t[:, c].min()
+                span[c] = t[:, c].max() - lo[c]
+        delta = bin_range / widths
+        nb = [1, 1]
+        for c in range(2):
+            if span[c] > 0 and delta[c] > 0:
+                nb[c] = int(min(max(1.0, math.floor(span[c] / delta[c])), _MAX_BINS))
+            elif span[c] > 0:
+                nb[c] = _MAX_BINS
+        while nb[0] * nb[1] > max(1, n) and max(nb) > 1:
+            c = 0 if nb[0] >= nb[1] else 1
+            nb[c] = max(1, nb[c] // 2)
+        nb0, nb1 = nb
+        inv_f = np.zeros(3)
+        layers = []
+        for c in range(2):
+            f = span[c] / nb[c]
+            inv_f[c] = nb[c] / span[c] if span[c] > 0 else 0.0
+            if f >= delta[c] or f == 0:
+                L = 1
+            else:
+                L = math.ceil(delta[c] / f)
+            if not pbc[c]:
+                L = min(L, nb[c] - 1)
+            layers.append(L)
+        stencil = [(o0, o1) for o0 in range(-layers[0], layers[0] + 1)
+                   for o1 in range(-layers[1], layers[1] + 1)
+                   if o0 > 0 or (o0 == 0 and o1 > 0)]
+        stencil = np.array(stencil, np.int64).reshape(-1, 2)
+        self._grid_shape = (nb0, nb1)
+        ncol = nb0 * nb1
+        grid.columns_of(t, pbc, lo, inv_f, nb0, nb1, self._col)
+        fresh = self._perm is None or len(self._perm) != n
+        prev = np.arange(n, dtype=np.int64) if fresh else self._perm
+        start = np.empty(ncol + 1, np.int64)
+        perm = self._perm_buf
+        grid.counting_sort(self._col, prev, ncol, start, perm)
+        grid.sort_columns(start, ncol, perm, np.ascontiguousarray(t[:, 2]), fresh)
+        self._perm_buf = prev if not fresh else np.empty(n, np.int64)
+        self._perm = perm
+        use_label = labels is not None
+        lab = labels if use_label else self._ls
+        grid.gather(perm, t, w, rad, lab, self._ts, self._ws, self._rs, self._ls, use_label)
+        if "S" in self.quantities:
+            np.take(self._k, perm, axis=0, out=self._ks)
+        t1 = time.perf_counter()
+        times["sort"] = t1 - t0
+        # chunks of whole columns with about equal particle counts
+        n_chunks = int(min(ncol, max(1, n // _CHUNK), _MAX_CHUNKS))
+        targets = (np.arange(1, n_chunks) * n) // n_chunks
+        cuts = np.searchsorted(start, targets, side="left")
+        chunk_cols = np.unique(np.concatenate([[0], cuts, [ncol]])).astype(np.int64)
+        n_chunks = len(chunk_cols) - 1
+        self._chunk_rows = start[chunk_cols]
+        rows = np.diff(self._chunk_rows)
+        if self._vcap is None or len(self._vcap) != n_chunks:
+            per = 64 if self._vcap is None else max(
+                8, int(self._vneed.sum() / max(n, 1) * 1.15) + 4)
+            cap = rows * per + 256
+        else:
+            cap = np.maximum(self._vneed + self._vneed // 8 + 256, rows * 4 + 256)
+        need = np.zeros(n_chunks, np.int64)
+        tested = np.zeros(n_chunks, np.int64)
+        todo = np.ones(n_chunks, np.bool_)
+        inv_w2 = 1.0 / widths[2]
+        while True:
+            reg_start = np.zeros(n_chunks, np.int64)
+            reg_start[1:] = np.cumsum(cap)[:-1]
+            size = int(cap.sum())
+            if not hasattr(self, "_vb") or len(self._vb) < size:
+                self._vb = np.empty(size + size // 8, np.int64)
+                self._vs = np.empty(size + size // 8, np.int64)
+                todo[:] = True
+            grid.build(chunk_cols, start, nb0, nb1, pbc, self._ts, self._ws, self._rs,
+                       self._ls, use_label, cell, stencil, rmax, reach, inv_w2,
+                       not minimum, self._vstart, self._vstop, self._vb, self._vs, reg_start,
+                       cap, todo, need, tested)
+            over = need > cap
+            if not over.any():
+                break
+            cap = np.where(over, need + need // 8 + 256, cap)
+            todo = over
+            if int(cap.sum()) > len(self._vb):
+                todo[:] = True
+        self._vcap = cap
+        self._vneed = need
+        times["build"] = time.perf_counter() - t1
+        return int(tested.sum())
+
+    def _narrow(self, skin, cell, use_m):
+        if self._n == 0:
+            self._alloc_output(0)
+            return 0
+        rows = self._chunk_rows
+        counts = np.empty(len(rows) - 1, np.int64)
+        strict = not self.include_cutoff
+        grid.narrow_count(rows, self._vstart, self._vstop, self._vb, self._vs, self._ws,
+                          self._m, use_m, self._rs, skin, cell, strict, counts)
+        offsets = np.zeros(len(counts), np.int64)
+        offsets[1:] = np.cumsum(counts)[:-1]
+        total = int(counts.sum())
+        self._alloc_output(total)
+        q = self.quantities
+        grid.narrow_fill(rows, offsets, self._vstart, self._vstop, self._vb, self._vs,
+                         self._ws, self._m, use_m, self._rs, skin, cell, strict, self._perm,
+                         self._ks_now(use_m), "d" in q, "D" in q, "S" in q, self._out_p,
+                         self._out_d, self._out_v, self._out_s)
+        return total
+
+    def _ks_now(self, use_m):
+        return self._ks
+
+    def _dedup(self, total):
+        """Pairs whose two images tie at exactly half a cell width: keep one."""
+        p = self._out_p[:total]
+        key = p[:, 0] * max(self._n, 1) + p[:, 1]
+        if len(np.unique(key)) == total:
+            return total
+        d = self._out_d[:total] if len(self._out_d) else np.zeros(total)
+        order = np.lexsort((d, key))
+        first = np.ones(total, bool)
+        first[1:] = key[order][1:] != key[order][:-1]
+        keep = np.sort(order[first])
+        k = len(keep)
+        self._out_p[:k] = p[keep]
+        for buf in (self._out_d, self._out_v, self._out_s):
+            if len(buf):
+                buf[:k] = buf[:total][keep]
+        return k
+
+    def _results(self, total):
+        if self.layout == "csr":
+            n = self._n
+            offsets = np.empty(n + 1, np.int64)
+            col = np.empty(total, np.int64)
+            want_d = "d" in self.quantities
+            cd = np.empty(total if want_d else 0)
+            if n >= 0:
+                grid.csr_from_pairs(max(n, 0), self._out_p[:total], self._out_d[:total]
+                                    if want_d else cd, want_d, offsets, col, cd)
+            return (offsets, col, cd) if want_d else (offsets, col)
+        out = []
+        for q in self.quantities:
+            if q == "P":
+                out.append(self._out_p[:total])
+            elif q == "i":
+                out.append(self._out_p[:total, 0])
+            elif q == "j":
+                out.append(self._out_p[:total, 1])
+            elif q == "d":
+                out.append(self._out_d[:total])
+            elif q == "D":
+                out.append(self._out_v[:total])
+            else:
+                out.append(self._out_s[:total])
+        return tuple(out)
+
+
+class NeighborSearch(_Search):
+    """Pairs of particles within ``cutoff`` over a sequence of frames.
+
+    Parameters
+    ----------
+    cutoff : float
+        Pairs with (minimum-image) distance ``d <= cutoff`` are returned.
+    rebuild_margin : float, optional
+        Verlet margin: the kept candidate list holds every pair within
+        ``cutoff + rebuild_margin`` and is rebuilt only when some particle has
+        moved more than ``rebuild_margin / 2`` since it was built (or the cell,
+        the particle count changed).  0 rebuilds every frame, reusing buffers.
+    quantities : str, optional
+        What :meth:`update` returns, in this order: ``'P'`` pairs ``(k, 2)``
+        int64 with ``i < j``; ``'i'``, ``'j'`` their columns; ``'d'`` distances;
+        ``'D'`` vectors from ``i`` to ``j``; ``'S'`` integer lattice shifts with
+        ``D = positions[j] - positions[i] + S @ cell``.  Default ``'Pd'``.
+    layout : {"pairs", "csr"}, optional
+        ``"csr"``: :meth:`update` returns the half list by particle instead,
+        ``(offsets (n + 1,), neighbors[, distances])``: the partners ``j > i``
+        of particle ``i`` are ``neighbors[offsets[i]:offsets[i + 1]]``.
+    periodic_images : {"minimum", "all"}, optional
+        ``"minimum"``: one image per pair, and ``cutoff`` must not exceed half
+        the smallest perpendicular width of the cell.  ``"all"``: every image
+        within range, including a particle's own images (the ASE convention;
+        ask for ``'S'`` to tell them apart).
+    include_cutoff : bool, optional
+        True (default): ``d <= cutoff``; False: ``d < cutoff`` (ASE).
+    n_threads : int, optional
+        numba threads for each call (restored afterwards); results do not
+        depend on it.
+
+    Notes
+    -----
+    Returned arrays are views of buffers the search owns: they stay valid
+    until the next :meth:`update` of the same search; pass ``copy=True`` (or
+    copy them) to keep them longer.  Indices are int64; inside, particles are
+    held in column order with int64 partner indices and int32-packed shifts.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from granularsap import NeighborSearch
+    >>> search = NeighborSearch(1.5, rebuild_margin=0.2)
+    >>> pos = np.array([[0.0, 0, 0], [1.0, 0, 0], [4.0, 0, 0]])
+    >>> pairs, d = search.update(pos, box=[5, 5, 5, 90, 90, 90])
+    >>> pairs.tolist(), d.tolist()
+    ([[0, 1], [0, 2]], [1.0, 1.0])
+    >>> pairs, d = search.update(pos + 0.05, box=[5, 5, 5, 90, 90, 90])
+    >>> search.stats["rebuilt"]
+    False
+    """
+
+    _what = "cutoff"
+
+    def __init__(self, cutoff, *, rebuild_margin=0.0, quantities="Pd", layout="pairs",
+                 periodic_images="minimum", include_cutoff=True, n_threads=None):
+        self.cutoff = as_scalar(cutoff, "cutoff")
+        super().__init__(rebuild_margin=rebuild_margin, quantities=quantities, layout=layout,
+                         n_threads=n_threads, periodic_images=periodic_images,
+                         include_cutoff=include_cutoff)
+        self._half = None
+
+    def update(self, positions, box=None, *, pbc=None, copy=False):
+        """Pairs of this frame.
+
+        Parameters
+        ----------
+        positions : (n, 3) array_like of float
+            Need not be wrapped into the cell; the count may change between calls.
+        box : None, (6,) or (3, 3) array_like of float, or Cell, optional
+            MDAnalysis ``[lx, ly, lz, alpha, beta, gamma]``, a matrix of cell
+            vectors (rows) or a :class:`granularsap.Cell`; None for open boundaries.
+        pbc : bool or (3,) bools, optional
+            Periodic axes (default: all, when a box is given).
+        copy : bool, optional
+            Return copies instead of views of the search's buffers.
+
+        Returns
+        -------
+        tuple of arrays (or one array) as chosen by ``quantities`` / ``layout``.
+        """
+        positions = as_coords(positions, "positions")
+        n = len(positions)
+        if self._half is None or len(self._half) != n:
+            self._half = np.full(n, 0.5 * self.cutoff)
+        return self._frame(positions, self._half, 0.0, box, pbc, None, copy)
+
+
+class ContactSearch(_Search):
+    """Sphere contacts ``d <= r_i + r_j + skin`` over a sequence of frames.
+
+    Parameters
+    ----------
+    skin : float, optional
+        Contact distance added to every pair's ``r_i + r_j``.
+    rebuild_margin, quantities, layout, periodic_images, include_cutoff, n_threads
+        As for :class:`NeighborSearch` (default quantities ``'P'``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from granularsap import ContactSearch
+    >>> search = ContactSearch(rebuild_margin=0.1)
+    >>> pos = np.array([[0.0, 0, 0], [1.5, 0, 0], [5.0, 0, 0]])
+    >>> search.update(pos, [1.0, 0.5, 1.0]).tolist()
+    [[0, 1]]
+    >>> search.update(pos, [1.0, 0.5, 1.0], clump_ids=[3, 3, 4]).tolist()
+    []
+    """
+
+    _what = "interaction range 2 * max(radii) + skin"
+
+    def __init__(self, *, skin=0.0, rebuild_margin=0.0, quantities="P", layout="pairs",
+                 periodic_images="minimum", include_cutoff=True, n_threads=None):
+        self.skin = as_scalar(skin, "skin")
+        super().__init__(rebuild_margin=rebuild_margin, quantities=quantities, layout=layout,
+                         n_threads=n_threads, periodic_images=periodic_images,
+                         include_cutoff=include_cutoff)
+
+    def update(self, positions, radii, box=None, *, pbc=None, clump_ids=None, copy=False):
+        """Contacts of this frame.
+
+        Parameters
+        ----------
+        positions : (n, 3) array_like of float
+        radii : (n,) array_like of float or float
+            Non-negative radii (a scalar applies to every sphere).
+        box, pbc, copy
+            As for :meth:`NeighborSearch.update`.
+        clump_ids : (n,) array_like of int, optional
+            Rigid-body label of every sphere: spheres with equal labels are never
+            paired.
+
+        Returns
+        -------
+        tuple of arrays (or one array) as chosen by ``quantities`` / ``layout``.
+        """
+        positions = as_coords(positions, "positions")
+        n = len(positions)
+        radii = as_radii(radii, n)
+        labels = None if clump_ids is None else as_labels(clump_ids, n)
+        return self._frame(positions, radii, self.skin, box, pbc, labels, copy)
+
+
+def as_radii(radii, n, name="radii"):
+    """Validated ``(n,)`` float64 radii (a scalar is broadcast); plain-float messages."""
+    arr = as_vector(radii, name, n, nonnegative=False)
+    if arr.size and arr.min() < 0:
+        bad = int(np.argmin(arr))
+        raise ValueError(f"{name} must be non-negative, got {float(arr[bad])!r} at index {bad}")
+    return arr
+
+
+def as_labels(clump_ids, n, name="clump_ids"):
+    """Validated ``(n,)`` int64 labels."""
+    ids = np.asarray(clump_ids)
+    if ids.dtype.kind not in "iu":
+        if ids.dtype.kind == "f" and ids.size and np.all(np.isfinite(ids)) and np.all(
+                ids == np.round(ids)):
+            ids = ids.astype(np.int64)
+        elif ids.size == 0:
+            ids = ids.astype(np.int64)
+        else:
+            raise TypeError(f"{name} must be integers, got dtype {ids.dtype}")
+    if ids.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {ids.shape}")
+    return np.ascontiguousarray(ids, dtype=np.int64)
