@@ -8,8 +8,11 @@ parallel bi-dimensional Sweep and Prune of Capannini & Larsson.
 from ._version import __version__
 from .api import SweepAndPrune, box_overlaps
 from .particles import clump_contacts, neighbor_pairs, sphere_contacts
+from .search import ContactSearch, NeighborSearch
 
 __all__ = [
+    "ContactSearch",
+    "NeighborSearch",
     "SweepAndPrune",
     "__version__",
     "box_overlaps",

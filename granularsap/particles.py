@@ -1,19 +1,14 @@
-"""Sphere contacts, neighbour pairs and rigid clumps on top of the box broad phase.
+"""Sphere contacts, neighbour pairs and rigid clumps: one-shot conveniences.
 
-Every function here follows the same pipeline:
+``neighbor_pairs``, ``sphere_contacts`` and ``clump_contacts`` are one frame of a
+fresh :class:`~granularsap.NeighborSearch` / :class:`~granularsap.ContactSearch`
+(``granularsap.search``), so they give exactly what a search gives on every
+frame of a trajectory.  For more than one frame, keep a search: it reuses its
+buffers, its sort order and (with a ``rebuild_margin``) its Verlet list.
 
-1. validate the input once (``_validate``, ``periodic.as_cell``);
-2. periodic cells only: wrap positions into the cell and add ghost images of the
-   particles whose range reaches past a face (``periodic.ghost_images``);
-3. broad phase: ``box_overlaps`` on one axis-aligned box per sphere (centre
-   ``+-`` ``(r + skin / 2)`` plus a rounding guard), owned boxes first, then
-   ghosts;
-4. narrow phase (``kernels.narrow``): map ghosts back to owned indices, keep
-   each unordered pair once, exact float64 distance, ``d <= r_i + r_j + skin``.
-
-The broad phase boxes are padded by a few ulps so that rounding in ``x +- h``
-never loses a pair whose distance equals the cutoff exactly; the decision is
-the narrow phase's alone.
+``_search`` below is the earlier ghost-image pipeline over the box broad phase
+(``box_overlaps``); the MDAnalysis and ASE drop-ins still call it while they
+move onto the public searches.
 """
 
 from __future__ import annotations
@@ -22,9 +17,10 @@ import numpy as np
 
 from . import periodic
 from ._numba import num_threads
-from ._validate import as_coords, as_scalar, as_vector, check_n_threads
-from .api import _sphere_candidates, box_overlaps
+from ._validate import as_coords
+from .api import _sphere_candidates
 from .kernels import narrow
+from .search import ContactSearch, NeighborSearch, as_labels, as_radii
 
 __all__ = ["clump_contacts", "neighbor_pairs", "sphere_contacts"]
 
@@ -163,13 +159,7 @@ def _search(positions, rad, skin, cell, pbc, *, n_threads, strict=False,
     return a, b, shift, dist, pos_d
 
 
-def _as_radii(radii, n, name="radii"):
-    """``as_vector`` plus a sign check whose message prints a plain float."""
-    arr = as_vector(radii, name, n, nonnegative=False)
-    if arr.size and arr.min() < 0:
-        bad = int(np.argmin(arr))
-        raise ValueError(f"{name} must be non-negative, got {float(arr[bad])!r} at index {bad}")
-    return arr
+_as_radii = as_radii
 
 
 def _pairs(a, b):
@@ -178,13 +168,13 @@ def _pairs(a, b):
     return np.ascontiguousarray(np.stack([a, b], axis=1), dtype=np.int64)
 
 
-def sphere_contacts(positions, radii, *, skin=0.0, box=None, n_threads=None,
+def sphere_contacts(positions, radii, *, skin=0.0, box=None, pbc=None, n_threads=None,
                     return_distances=False):
     """Pairs of spheres closer than the sum of their radii plus ``skin``.
 
-    Broad phase on each sphere's axis-aligned box (``centre +- (r + skin / 2)``),
-    then the exact test ``d <= r_i + r_j + skin`` in float64.  Radii may differ
-    by orders of magnitude (polydisperse packings).
+    One frame of a fresh :class:`~granularsap.ContactSearch`: the exact test
+    ``d <= r_i + r_j + skin`` in float64.  Radii may differ by orders of
+    magnitude (polydisperse packings).
 
     Parameters
     ----------
@@ -193,10 +183,13 @@ def sphere_contacts(positions, radii, *, skin=0.0, box=None, n_threads=None,
     radii : (n,) array_like of float or float
         Non-negative radii (a scalar applies to every sphere).
     skin : float, optional
-        Extra distance added to every pair's contact distance (Verlet skin).
-    box : None, (6,) or (3, 3) array_like of float, optional
-        Periodic cell: MDAnalysis ``[lx, ly, lz, alpha, beta, gamma]`` or a matrix
-        whose rows are the cell vectors.  ``None`` for open boundaries.
+        Extra distance added to every pair's contact distance.
+    box : None, (6,) or (3, 3) array_like of float, or Cell, optional
+        Periodic cell: MDAnalysis ``[lx, ly, lz, alpha, beta, gamma]``, a matrix
+        whose rows are the cell vectors, or a :class:`~granularsap.Cell`.
+        ``None`` for open boundaries.
+    pbc : bool or (3,) bools, optional
+        Periodic axes of ``box`` (default: every axis, or the Cell's own).
     n_threads : int, optional
         numba threads for this call (restored afterwards).
     return_distances : bool, optional
@@ -225,34 +218,32 @@ def sphere_contacts(positions, radii, *, skin=0.0, box=None, n_threads=None,
     >>> pos = np.array([[0.0, 0, 0], [1.5, 0, 0], [5.0, 0, 0]])
     >>> sphere_contacts(pos, [1.0, 0.5, 1.0]).tolist()
     [[0, 1]]
-    >>> sphere_contacts(pos, 1.0, box=[6, 6, 6, 90, 90, 90]).tolist()
+    >>> sorted(sphere_contacts(pos, 1.0, box=[6, 6, 6, 90, 90, 90]).tolist())
     [[0, 1], [0, 2]]
     """
-    positions = as_coords(positions, "positions")
-    radii = _as_radii(radii, len(positions))
-    skin = as_scalar(skin, "skin")
-    cell = periodic.as_cell(box)
-    n_threads = check_n_threads(n_threads)
-    a, b, _, dist, _ = _search(positions, radii, skin, cell, np.ones(3, bool),
-                               n_threads=n_threads)
-    pairs = _pairs(a, b)
-    return (pairs, dist) if return_distances else pairs
+    search = ContactSearch(skin=skin, quantities="Pd" if return_distances else "P",
+                           n_threads=n_threads)
+    return search.update(positions, radii, box, pbc=pbc)
 
 
-def neighbor_pairs(positions, cutoff, *, box=None, n_threads=None, return_distances=True):
+def neighbor_pairs(positions, cutoff, *, box=None, pbc=None, n_threads=None,
+                   return_distances=True):
     """All pairs with (minimum image) distance ``d <= cutoff``.
 
     The same pair set as MDAnalysis
     ``self_capped_distance(positions, max_cutoff=cutoff, box=box)`` (computed in
-    float64 rather than MDAnalysis's float32).
+    float64 rather than MDAnalysis's float32); one frame of a fresh
+    :class:`~granularsap.NeighborSearch`.
 
     Parameters
     ----------
     positions : (n, 3) array_like of float
     cutoff : float
         Non-negative cutoff distance; pairs at exactly ``cutoff`` are included.
-    box : None, (6,) or (3, 3) array_like of float, optional
+    box : None, (6,) or (3, 3) array_like of float, or Cell, optional
         Periodic cell as in :func:`sphere_contacts`.
+    pbc : bool or (3,) bools, optional
+        Periodic axes of ``box``.
     n_threads : int, optional
     return_distances : bool, optional
         Also return the distances (default True, as MDAnalysis).
@@ -278,38 +269,32 @@ def neighbor_pairs(positions, cutoff, *, box=None, n_threads=None, return_distan
     >>> pairs.tolist(), d.tolist()
     ([[0, 1]], [1.0])
     """
-    positions = as_coords(positions, "positions")
-    cutoff = as_scalar(cutoff, "cutoff")
-    cell = periodic.as_cell(box)
-    n_threads = check_n_threads(n_threads)
-    rad = np.full(len(positions), 0.5 * cutoff)
-    a, b, _, dist, _ = _search(positions, rad, 0.0, cell, np.ones(3, bool),
-                               n_threads=n_threads, what="cutoff")
-    pairs = _pairs(a, b)
-    return (pairs, dist) if return_distances else pairs
+    search = NeighborSearch(cutoff, quantities="Pd" if return_distances else "P",
+                            n_threads=n_threads)
+    return search.update(positions, box, pbc=pbc)
 
 
-def clump_contacts(positions, radii, clump_ids, *, skin=0.0, box=None, n_threads=None):
+def clump_contacts(positions, radii, clump_ids, *, skin=0.0, box=None, pbc=None,
+                   n_threads=None):
     """Contacts between rigid clumps (multi-sphere bodies).
 
-    The broad phase runs on one axis-aligned box per clump (the union of its
-    spheres' boxes); sphere pairs are then tested only between different
-    clumps, so intra-clump pairs are never returned.
+    One frame of a fresh :class:`~granularsap.ContactSearch` with clump
+    labels: sphere pairs are tested only between different clumps, so
+    intra-clump pairs are never returned (and never counted as work).  Each
+    sphere pair is taken at its own minimum image, so a clump may straddle
+    the cell boundary, its spheres wrapped independently.
 
     Parameters
     ----------
     positions : (n, 3) array_like of float
-        Sphere centres.  In a periodic cell a clump may straddle the boundary
-        and its spheres may be wrapped independently: each sphere is placed at
-        the minimum image of its offset from the clump's first sphere, so every
-        clump must span less than half the cell along each periodic axis
-        (checked where the members make it detectable).
+        Sphere centres.
     radii : (n,) array_like of float or float
     clump_ids : (n,) array_like of int
         Body label of every sphere (any integers; spheres with equal labels
         form one rigid clump).
     skin : float, optional
-    box : None, (6,) or (3, 3) array_like of float, optional
+    box : None, (6,) or (3, 3) array_like of float, or Cell, optional
+    pbc : bool or (3,) bools, optional
     n_threads : int, optional
 
     Returns
@@ -331,101 +316,10 @@ def clump_contacts(positions, radii, clump_ids, *, skin=0.0, box=None, n_threads
     ([[1, 2]], [[7, 8]])
     """
     positions = as_coords(positions, "positions")
-    n = len(positions)
-    radii = _as_radii(radii, n)
-    skin = as_scalar(skin, "skin")
-    ids = np.asarray(clump_ids)
-    if ids.dtype.kind not in "iu":
-        if ids.dtype.kind == "f" and ids.size and np.all(np.isfinite(ids)) and np.all(
-                ids == np.round(ids)):
-            ids = ids.astype(np.int64)
-        elif ids.size == 0:
-            ids = ids.astype(np.int64)
-        else:
-            raise TypeError(f"clump_ids must be integers, got dtype {ids.dtype}")
-    if ids.shape != (n,):
-        raise ValueError(f"clump_ids must have shape ({n},), got {ids.shape}")
-    cell = periodic.as_cell(box)
-    n_threads = check_n_threads(n_threads)
-    if n == 0:
-        return _EMPTY_PAIRS.copy(), _EMPTY_PAIRS.copy()
-    labels, cidx = np.unique(ids, return_inverse=True)
-    cidx = cidx.reshape(-1).astype(np.int64)
-    nc = len(labels)
-    members = np.argsort(cidx, kind="stable").astype(np.int64)
-    start = np.zeros(nc + 1, dtype=np.int64)
-    np.cumsum(np.bincount(cidx, minlength=nc), out=start[1:])
-    ref = members[start[:-1]]  # first sphere of every clump
-    pbc = np.ones(3, dtype=bool)
-    half = radii + 0.5 * skin
-    if cell is not None:
-        _check_range(2.0 * radii.max() + skin, cell, pbc,
-                     "interaction range 2 * max(radii) + skin")
-        wref, _ = periodic.wrap(positions[ref], cell, pbc)
-        offs = positions - positions[ref[cidx]]
-        s = periodic.fractional(offs, cell)
-        s -= np.round(s)
-        smin = np.full((nc, 3), np.inf)
-        smax = np.full((nc, 3), -np.inf)
-        np.minimum.at(smin, cidx, s)
-        np.maximum.at(smax, cidx, s)
-        span = smax - smin
-        if np.any(span >= 0.5):
-            c_bad, ax = np.unravel_index(int(np.argmax(span)), span.shape)
-            raise ValueError(
-                f"clump {labels[c_bad]} spans {span[c_bad, ax]:.6g} of the cell along cell "
-                f"vector {ax}; every clump must span less than half the cell along each "
-                "periodic axis")
-        u = wref[cidx] + s @ cell
-        u[ref] = wref
-        widths = periodic.perpendicular_widths(cell)
-    else:
-        u = positions
-        cell_k = np.zeros((3, 3))
-    guard = _guard(u, half)
-    lo = u - (half + guard)[:, None]
-    hi = u + (half + guard)[:, None]
-    clo = np.full((nc, 3), np.inf)
-    chi = np.full((nc, 3), -np.inf)
-    np.minimum.at(clo, cidx, lo)
-    np.maximum.at(chi, cidx, hi)
-    if cell is not None:
-        centre = u[ref]
-        bound = np.zeros(nc)
-        np.maximum.at(bound, cidx, np.linalg.norm(u - centre[cidx], axis=1) + half + guard)
-        reach = bound + bound.max() + 1e-12 * widths.max()
-        owner, gshift = periodic.ghost_images(centre, cell, pbc, reach)
-        glo = periodic.translate(clo[owner], gshift, cell)
-        ghi = periodic.translate(chi[owner], gshift, cell)
-        lower = np.concatenate([clo, glo])
-        upper = np.concatenate([chi, ghi])
-        cell_k = cell
-    else:
-        owner = np.empty(0, np.int64)
-        gshift = np.empty((0, 3), np.int64)
-        lower, upper = clo, chi
-    cand = np.asarray(box_overlaps(np.ascontiguousarray(lower), np.ascontiguousarray(upper),
-                                   n_threads=n_threads), dtype=np.int64)
-    p = np.minimum(cand[:, 0], cand[:, 1]) if len(cand) else np.empty(0, np.int64)
-    q = np.maximum(cand[:, 0], cand[:, 1]) if len(cand) else np.empty(0, np.int64)
-    ok = p < nc
-    p, q = p[ok], q[ok]
-    ghost = q >= nc
-    cb = q.copy()
-    ct = np.zeros((len(q), 3), dtype=np.int64)
-    cb[ghost] = owner[q[ghost] - nc]
-    ct[ghost] = gshift[q[ghost] - nc]
-    ok = p < cb  # canonical side of each image pair; drops clump-with-own-image
-    ca, cb, ct = (np.ascontiguousarray(p[ok]), np.ascontiguousarray(cb[ok]),
-                  np.ascontiguousarray(ct[ok]))
-    u = np.ascontiguousarray(u, dtype=np.float64)
-    with num_threads(n_threads) as threads:
-        counts, sp, _ = narrow.clump_pairs(ca, cb, ct, start, members, u, cell_k, radii, skin,
-                                           n_threads=threads)
-    hit = counts > 0
-    cp = np.stack([labels[ca[hit]], labels[cb[hit]]], axis=1).astype(np.int64)
-    if len(cp):
-        cp = np.unique(np.sort(cp, axis=1), axis=0)
-    else:
-        cp = _EMPTY_PAIRS.copy()
-    return sp, cp
+    ids = as_labels(clump_ids, len(positions))
+    sp = ContactSearch(skin=skin, quantities="P", n_threads=n_threads).update(
+        positions, radii, box, pbc=pbc, clump_ids=ids)
+    if len(sp) == 0:
+        return sp, _EMPTY_PAIRS.copy()
+    cp = np.sort(np.stack([ids[sp[:, 0]], ids[sp[:, 1]]], axis=1), axis=1)
+    return sp, np.unique(cp, axis=0).astype(np.int64)

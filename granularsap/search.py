@@ -183,27 +183,51 @@ class _Search:
                         "of a pair would be in range. Use a larger cell (replicate it) or a "
                         "smaller range, or periodic_images='all' to get every image with "
                         "its shift")
+        # Coordinates so large that squared distances overflow (or so small that
+        # they underflow) are scaled by a power of two, which is exact: every
+        # comparison and every distance is the same as in unbounded arithmetic.
+        mag = max(float(np.abs(positions).max()) if n else 0.0, reach_max,
+                  float(np.abs(full).max()) if full is not None else 0.0)
+        scale = 1.0
+        if mag > 2.0 ** 500 or 0.0 < mag < 2.0 ** -500:
+            scale = math.ldexp(1.0, -math.frexp(mag)[1])
+            positions = positions * scale
+            rad = rad * scale
+            skin = skin * scale
+            rmax *= scale
+            reach_max *= scale
+            if cell is not None:
+                cell = cell * scale
+                full = full * scale
+        self._margin = self.rebuild_margin * scale
         threads = self.n_threads
         if threads is None and n < _PARALLEL_MIN:
             threads = 1
         with num_threads(threads) as threads:
             result = self._run(positions, rad, skin, cell, full, pbc_arr, labels, n, rmax,
-                               reach_max, minimum, threads, t_start)
+                               reach_max, minimum, threads, t_start, scale)
+        if scale != 1.0:
+            if self.layout == "pairs":
+                for q, r in zip(self.quantities, result, strict=True):
+                    if q in "dD":
+                        r /= scale
+            elif len(result) == 3:
+                result[2] /= scale
         if copy:
             result = tuple(np.array(r) for r in result)
         return result[0] if len(result) == 1 else result
 
     def _run(self, positions, rad, skin, cell, full, pbc, labels, n, rmax, reach_max, minimum,
-             threads, t_start):
+             threads, t_start, scale):
         self._frames += 1
         cell_k = cell if cell is not None else np.eye(3)
         full_k = full if full is not None else np.eye(3)
         diag = not np.any(full_k - np.diag(np.diag(full_k)))
         hinv = np.ascontiguousarray(np.linalg.inv(full_k)) if not diag else np.eye(3)
         key = (n, cell_k.tobytes(), pbc.tobytes(), skin, minimum, self.include_cutoff,
-               labels is not None)
+               labels is not None, scale)
         self._alloc_particles(n)
-        margin = self.rebuild_margin
+        margin = self._margin
         reason = None
         if self._key != key:
             reason = "first frame" if self._key is None else (
@@ -280,9 +304,9 @@ class _Search:
         bad = grid.wrap(positions, hinv, cell, diag, pbc, self._t, self._k, self._w)
         self._raise_bad(bad, positions, pbc)
         t, w = self._t, self._w
-        scale = float(np.abs(w).max()) + reach_max + self.rebuild_margin
-        guard = _GUARD * scale + np.finfo(np.float64).tiny
-        reach = skin + self.rebuild_margin + guard
+        extent = float(np.abs(w).max()) + reach_max + self._margin
+        guard = _GUARD * extent + np.finfo(np.float64).tiny
+        reach = skin + self._margin + guard
         bin_range = 2.0 * rmax + reach + guard
         widths = periodic.perpendicular_widths(full)
         lo = np.zeros(3)
@@ -294,19 +318,21 @@ class _Search:
         delta = bin_range / widths
         nb = [1, 1]
         for c in range(2):
-            if span[c] > 0 and delta[c] > 0:
-                nb[c] = int(min(max(1.0, math.floor(span[c] / delta[c])), _MAX_BINS))
-            elif span[c] > 0:
-                nb[c] = _MAX_BINS
+            if span[c] > 0:
+                with np.errstate(over="ignore", divide="ignore"):
+                    ratio = span[c] / delta[c] if delta[c] > 0 else math.inf
+                nb[c] = int(max(1.0, math.floor(min(ratio, float(_MAX_BINS)))))
         while nb[0] * nb[1] > max(1, n) and max(nb) > 1:
             c = 0 if nb[0] >= nb[1] else 1
             nb[c] = max(1, nb[c] // 2)
-        nb0, nb1 = nb
         inv_f = np.zeros(3)
         layers = []
         for c in range(2):
             f = span[c] / nb[c]
-            inv_f[c] = nb[c] / span[c] if span[c] > 0 else 0.0
+            with np.errstate(over="ignore", divide="ignore"):
+                inv_f[c] = nb[c] / span[c] if span[c] > 0 else 0.0
+            if not math.isfinite(inv_f[c]):  # a subnormal span: one column
+                nb[c], inv_f[c], f = 1, 0.0, 0.0
             if f >= delta[c] or f == 0:
                 L = 1
             else:
@@ -318,6 +344,7 @@ class _Search:
                    for o1 in range(-layers[1], layers[1] + 1)
                    if o0 > 0 or (o0 == 0 and o1 > 0)]
         stencil = np.array(stencil, np.int64).reshape(-1, 2)
+        nb0, nb1 = nb
         self._grid_shape = (nb0, nb1)
         ncol = nb0 * nb1
         grid.columns_of(t, pbc, lo, inv_f, nb0, nb1, self._col)
@@ -392,7 +419,7 @@ class _Search:
         total = int(counts.sum())
         self._alloc_output(total)
         q = self.quantities
-        grid.narrow_fill(rows, offsets, self._vstart, self._vstop, self._vb, self._vs,
+        grid.narrow_fill(rows, offsets, counts, self._vstart, self._vstop, self._vb, self._vs,
                          self._ws, self._m, use_m, self._rs, skin, cell, strict, self._perm,
                          self._ks_now(use_m), "d" in q, "D" in q, "S" in q, self._out_p,
                          self._out_d, self._out_v, self._out_s)

@@ -274,12 +274,16 @@ class TestClumpContacts:
         with pytest.raises(exc, match=match):
             clump_contacts(np.zeros((3, 3)), 0.5, ids)
 
-    def test_clump_wider_than_half_the_cell_raises(self):
-        # member offsets are minimum images from the first sphere: 0, 1/3, -1/3
-        pos = np.array([[0.0, 0, 0], [3.5, 0, 0], [7.0, 0, 0]])
-        with pytest.raises(ValueError, match=r"clump 4 spans 0.666667 of the cell along cell "
-                                             r"vector 0; every clump must span less than half"):
-            clump_contacts(pos, 0.1, [4, 4, 4], box=[10.5, 10, 10, 90, 90, 90])
+    def test_clump_wider_than_half_the_cell_pairs_spheres_at_their_own_images(self):
+        # a chain of spheres longer than half the cell: every sphere pair between
+        # different clumps is decided at its own minimum image
+        pos = np.array([[0.0, 0, 0], [3.5, 0, 0], [7.0, 0, 0], [8.9, 0, 0], [5.2, 0.3, 0]])
+        ids = np.array([4, 4, 4, 5, 6])
+        box = [10.5, 10, 10, 90, 90, 90]
+        sp, cp = clump_contacts(pos, 1.0, ids, box=box)
+        wp, _, wcp = _clump_oracle(pos, np.full(5, 1.0), ids, 0.0, _cell(box))
+        assert np.array_equal(_sorted(sp)[0], wp) and np.array_equal(cp, wcp)
+        assert len(wp) == 4
 
 
 # ---------------------------------------------------------------- properties

@@ -93,13 +93,16 @@ def _separation(w, a, b, cell, s0, s1, s2):
     dx = w[b, 0] - w[a, 0]
     dy = w[b, 1] - w[a, 1]
     dz = w[b, 2] - w[a, 2]
-    if s0 != 0 or s1 != 0 or s2 != 0:
+    # a zero shift would add +-0.0: skipping it changes no distance
+    if s0 != 0:
         dx += s0 * cell[0, 0]
         dy += s0 * cell[0, 1]
         dz += s0 * cell[0, 2]
+    if s1 != 0:
         dx += s1 * cell[1, 0]
         dy += s1 * cell[1, 1]
         dz += s1 * cell[1, 2]
+    if s2 != 0:
         dx += s2 * cell[2, 0]
         dy += s2 * cell[2, 1]
         dz += s2 * cell[2, 2]
@@ -113,13 +116,15 @@ def _distance_scaled(w, a, b, cell, s0, s1, s2):
     dx = w[b, 0] * k - w[a, 0] * k
     dy = w[b, 1] * k - w[a, 1] * k
     dz = w[b, 2] * k - w[a, 2] * k
-    if s0 != 0 or s1 != 0 or s2 != 0:
+    if s0 != 0:
         dx += s0 * (cell[0, 0] * k)
         dy += s0 * (cell[0, 1] * k)
         dz += s0 * (cell[0, 2] * k)
+    if s1 != 0:
         dx += s1 * (cell[1, 0] * k)
         dy += s1 * (cell[1, 1] * k)
         dz += s1 * (cell[1, 2] * k)
+    if s2 != 0:
         dx += s2 * (cell[2, 0] * k)
         dy += s2 * (cell[2, 1] * k)
         dz += s2 * (cell[2, 2] * k)
@@ -129,10 +134,7 @@ def _distance_scaled(w, a, b, cell, s0, s1, s2):
 @ijit
 def _distance(w, a, b, cell, s0, s1, s2):
     dx, dy, dz = _separation(w, a, b, cell, s0, s1, s2)
-    d2 = dx * dx + dy * dy + dz * dz
-    if not d2 <= _BIG2:  # overflow (or inf/nan from an overflowing difference)
-        return _distance_scaled(w, a, b, cell, s0, s1, s2)
-    return math.sqrt(d2)
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
 # ----------------------------------------------------------------- wrapping
@@ -345,8 +347,7 @@ def _keep(w, p, q, cell, s0, s1, s2, rs, ls, use_label, self_images, reach):
             return False
     if use_label and ls[p] == ls[q]:
         return False
-    d = _distance(w, p, q, cell, s0, s1, s2)
-    return d <= rs[p] + rs[q] + reach
+    return _distance(w, p, q, cell, s0, s1, s2) <= rs[p] + rs[q] + reach
 
 
 @jit
@@ -379,11 +380,11 @@ def _build_chunk(c_lo, c_hi, start, nb0, nb1, pbc, ts, ws, rs, ls, use_label, ce
                 if tz[q] + k - tp > delta:
                     break
                 tested += 1
-                if _keep(ws, p, q, cell, 0, 0, k, rs, ls, use_label, self_images, reach):
-                    if pos < cap:
-                        vb[base + pos] = q
-                        vs[base + pos] = _encode(0, 0, k)
-                    pos += 1
+                ok = _keep(ws, p, q, cell, 0, 0, k, rs, ls, use_label, self_images, reach)
+                if pos < cap:  # written whether kept or not: no unpredictable branch
+                    vb[base + pos] = q
+                    vs[base + pos] = _encode(0, 0, k)
+                pos += np.int64(ok)
                 q += 1
             # half stencil of neighbouring columns
             for o in range(stencil.shape[0]):
@@ -419,12 +420,12 @@ def _build_chunk(c_lo, c_hi, start, nb0, nb1, pbc, ts, ws, rs, ls, use_label, ce
                     top = hi_v - k
                     while q < hi2 and tz[q] <= top:
                         tested += 1
-                        if _keep(ws, p, q, cell, s0, s1, k, rs, ls, use_label, self_images,
-                                 reach):
-                            if pos < cap:
-                                vb[base + pos] = q
-                                vs[base + pos] = _encode(s0, s1, k)
-                            pos += 1
+                        ok = _keep(ws, p, q, cell, s0, s1, k, rs, ls, use_label, self_images,
+                                   reach)
+                        if pos < cap:
+                            vb[base + pos] = q
+                            vs[base + pos] = _encode(s0, s1, k)
+                        pos += np.int64(ok)
                         q += 1
             vstop[p] = base + min(pos, cap)
     return pos, tested
@@ -463,6 +464,7 @@ def narrow_count(chunk_rows, vstart, vstop, vb, vs, ws, m, use_m, rs, skin, cell
                  counts):
     """Pairs in range per chunk of rows (pass 1 of a frame)."""
     n_chunks = chunk_rows.shape[0] - 1
+    incl = not strict
     for c in numba.prange(n_chunks):
         cnt = 0
         for p in range(chunk_rows[c], chunk_rows[c + 1]):
@@ -471,40 +473,44 @@ def narrow_count(chunk_rows, vstart, vstop, vb, vs, ws, m, use_m, rs, skin, cell
                 s0, s1, s2 = _entry(ws, p, q, vs[e], m, use_m, cell)
                 d = _distance(ws, p, q, cell, s0, s1, s2)
                 thr = rs[p] + rs[q] + skin
-                if d < thr or (d == thr and not strict):
-                    cnt += 1
+                cnt += np.int64((d < thr) | (incl & (d == thr)))
         counts[c] = cnt
 
 
 @pjit
-def narrow_fill(chunk_rows, offsets, vstart, vstop, vb, vs, ws, m, use_m, rs, skin, cell,
-                strict, perm, kw, want_d, want_vec, want_shift, out_p, out_d, out_v, out_s):
+def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, use_m, rs, skin,
+                cell, strict, perm, kw, want_d, want_vec, want_shift, out_p, out_d, out_v,
+                out_s):
     """Write each chunk's pairs from ``offsets[c]`` (pass 2 of a frame).
 
     Rows are ``(i, j)`` original indices with ``i < j``; the vector and shift
     are from ``i`` to ``j``, the shift in terms of the caller's positions
-    (``D = x[j] - x[i] + S @ cell``; ``kw`` is the current wrap shift).
+    (``D = x[j] - x[i] + S @ cell``; ``kw`` is the current wrap shift).  Every
+    candidate is written to the next free slot and the slot is kept only if
+    the pair is in range (no unpredictable branch); a chunk never writes past
+    its own ``counts[c]`` slots.
     """
     n_chunks = chunk_rows.shape[0] - 1
+    incl = not strict
     for c in numba.prange(n_chunks):
         o = offsets[c]
+        end = o + counts[c]
         for p in range(chunk_rows[c], chunk_rows[c + 1]):
+            if o >= end:
+                break
             ip = perm[p]
             for e in range(vstart[p], vstop[p]):
                 q = vb[e]
                 s0, s1, s2 = _entry(ws, p, q, vs[e], m, use_m, cell)
                 d = _distance(ws, p, q, cell, s0, s1, s2)
                 thr = rs[p] + rs[q] + skin
-                if not (d < thr or (d == thr and not strict)):
-                    continue
+                ok = (d < thr) | (incl & (d == thr))
+                if o >= end:
+                    break
                 iq = perm[q]
                 flip = iq < ip
-                if flip:
-                    out_p[o, 0] = iq
-                    out_p[o, 1] = ip
-                else:
-                    out_p[o, 0] = ip
-                    out_p[o, 1] = iq
+                out_p[o, 0] = min(ip, iq)
+                out_p[o, 1] = max(ip, iq)
                 if want_d:
                     out_d[o] = d
                 if want_vec:
@@ -528,7 +534,7 @@ def narrow_fill(chunk_rows, offsets, vstart, vstop, vb, vs, ws, m, use_m, rs, sk
                     out_s[o, 0] = u0
                     out_s[o, 1] = u1
                     out_s[o, 2] = u2
-                o += 1
+                o += np.int64(ok)
 
 
 @jit
