@@ -3,20 +3,118 @@
 Compilation is cached on disk by default (``cache=True``) so that a warm
 ``import granularsap`` plus the first call stays fast.  Set the environment
 variable ``GRANULARSAP_NO_CACHE=1`` to turn the cache off (for example on a
-read-only install).  The library never chooses numba's threading layer: that
-is the application's call.
+read-only install).
+
+Threading layer and fork safety
+-------------------------------
+numba's default threading layer on Linux is GNU OpenMP, and a process that has
+run an OpenMP parallel region must not ``fork()``: the child aborts with
+"fork() called from a process already using GNU OpenMP, this is unsafe" and a
+``multiprocessing`` pool (fork start method, MDAnalysis's ``multiprocessing``
+analysis backend) waits forever.  So that granularsap is fork-safe out of the
+box, importing it picks a fork-safe layer, unless the application has chosen
+one itself:
+
+* nothing is changed if ``NUMBA_THREADING_LAYER`` is set in the environment
+  (any value, ``default`` included), if ``numba.config.THREADING_LAYER`` was
+  set to something other than ``"default"`` before granularsap was imported,
+  or if numba's thread pool is already running (a choice that may use TBB,
+  such as ``tbb`` or ``safe``, still gets the wheel's ``libtbb`` preloaded);
+* otherwise the layer becomes ``"tbb"`` when Intel TBB can be loaded (the
+  PyPI package ``tbb``; its ``libtbb`` is located and preloaded, so a plain
+  virtual environment needs no ``LD_LIBRARY_PATH``), else ``"workqueue"``.
+
+An application that sets ``numba.config.THREADING_LAYER`` after importing
+granularsap but before the first parallel call still wins.  ``workqueue`` is
+fork-safe but not thread-safe (numba aborts the process when two Python
+threads launch parallel regions at the same moment), so under ``workqueue``
+granularsap runs its parallel kernels one call at a time; install ``tbb`` for
+concurrent calls from several threads.  :data:`THREADING_LAYER_SET` records what was done.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import functools
 import os
+import sys
+import threading
 
 import numba
 
 CACHE = os.environ.get("GRANULARSAP_NO_CACHE", "0").lower() in ("", "0", "false", "no")
 
 _OPTIONS = dict(cache=CACHE, nogil=True, fastmath=False, error_model="numpy")
+
+#: The threading layer granularsap set at import ("tbb" or "workqueue"), or
+#: None if it left the choice to the application (see the module docstring).
+THREADING_LAYER_SET = None
+
+
+def _tbb_library():
+    """Path of ``libtbb`` installed by the ``tbb`` wheel, or None."""
+    if not sys.platform.startswith("linux"):
+        return None  # elsewhere numba finds the wheel's library on its own, or not at all
+    try:
+        from importlib import metadata
+
+        files = metadata.files("tbb") or []
+    except Exception:  # not installed, or broken metadata
+        return None
+    for f in files:
+        if f.name == "libtbb.so.12":
+            path = f.locate()
+            if os.path.exists(path):
+                return os.fspath(path)
+    return None
+
+
+def _tbb_usable():
+    """True if numba's TBB threading layer would load in this process."""
+    from numba.np.ufunc import parallel
+
+    try:
+        parallel._check_tbb_version_compatible()
+        from numba.np.ufunc import tbbpool  # noqa: F401
+        return True
+    except ImportError:
+        pass
+    lib = _tbb_library()
+    if lib is None:
+        return False
+    try:
+        ctypes.CDLL(lib, mode=ctypes.RTLD_GLOBAL)
+        parallel._check_tbb_version_compatible()
+        from numba.np.ufunc import tbbpool  # noqa: F401, F811
+    except (OSError, ImportError):
+        return False
+    return True
+
+
+def _choose_threading_layer():
+    """Select a fork-safe threading layer unless the application chose one."""
+    global THREADING_LAYER_SET
+    from numba.np.ufunc import parallel
+
+    if parallel._is_initialized:
+        return None  # a parallel region already ran: too late to change anything
+    chosen = os.environ.get("NUMBA_THREADING_LAYER")
+    if chosen is None and str(numba.config.THREADING_LAYER).lower() != "default":
+        chosen = str(numba.config.THREADING_LAYER)
+    if chosen is not None:
+        # the application's choice stands; make the tbb wheel's library loadable
+        # if that choice may use TBB
+        if chosen.lower() in ("tbb", "safe", "threadsafe", "forksafe"):
+            _tbb_usable()
+        return None
+    layer = "tbb" if _tbb_usable() else "workqueue"
+    numba.config.THREADING_LAYER = layer
+    THREADING_LAYER_SET = layer
+    return layer
+
+
+_choose_threading_layer()
 
 
 def jit(func):
@@ -30,9 +128,43 @@ def ijit(func):
     return numba.njit(inline="always", **_OPTIONS)(func)
 
 
+_WORKQUEUE_LOCK = threading.Lock()
+
+
+def _workqueue_in_use():
+    try:
+        return numba.threading_layer() == "workqueue"
+    except ValueError:  # no parallel region yet: the configured layer decides
+        return str(numba.config.THREADING_LAYER).lower() == "workqueue"
+
+
+class _ParallelKernel:
+    """A parallel dispatcher that, under the ``workqueue`` layer, runs one call
+    at a time: workqueue aborts the process when two threads launch parallel
+    regions concurrently.  Any other layer calls straight through."""
+
+    __slots__ = ("_dispatcher", "__dict__")
+
+    def __init__(self, dispatcher):
+        self._dispatcher = dispatcher
+        functools.update_wrapper(self, dispatcher)
+
+    def __call__(self, *args, **kwargs):
+        if _workqueue_in_use():
+            with _WORKQUEUE_LOCK:
+                return self._dispatcher(*args, **kwargs)
+        return self._dispatcher(*args, **kwargs)
+
+    def __getattr__(self, name):
+        return getattr(self._dispatcher, name)
+
+
 def pjit(func):
-    """Decorator for parallel kernels (``numba.prange`` loops)."""
-    return numba.njit(parallel=True, **_OPTIONS)(func)
+    """Decorator for parallel kernels (``numba.prange`` loops).
+
+    Kernels must be called from Python, not from other kernels (the returned
+    object serialises calls under the ``workqueue`` layer)."""
+    return _ParallelKernel(numba.njit(parallel=True, **_OPTIONS)(func))
 
 
 def max_threads() -> int:
