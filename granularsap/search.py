@@ -120,6 +120,8 @@ class _Search:
         self._out_cap = 0
         self._perm = None
         self._vcap = None
+        #: columns per pair range (2: columns half the range wide, two-layer stencil)
+        self._split = 2
 
     # ------------------------------------------------------------- buffers
     def _alloc_particles(self, n):
@@ -320,7 +322,8 @@ class _Search:
         for c in range(2):
             if span[c] > 0:
                 with np.errstate(over="ignore", divide="ignore"):
-                    ratio = span[c] / delta[c] if delta[c] > 0 else math.inf
+                    ratio = (self._split * span[c] / delta[c] if delta[c] > 0
+                             else math.inf)
                 nb[c] = int(max(1.0, math.floor(min(ratio, float(_MAX_BINS)))))
         while nb[0] * nb[1] > max(1, n) and max(nb) > 1:
             c = 0 if nb[0] >= nb[1] else 1
@@ -381,6 +384,7 @@ class _Search:
         tested = np.zeros(n_chunks, np.int64)
         todo = np.ones(n_chunks, np.bool_)
         inv_w2 = 1.0 / widths[2]
+        tz = np.ascontiguousarray(self._ts[:, 2])
         while True:
             reg_start = np.zeros(n_chunks, np.int64)
             reg_start[1:] = np.cumsum(cap)[:-1]
@@ -389,7 +393,7 @@ class _Search:
                 self._vb = np.empty(size + size // 8, np.int64)
                 self._vs = np.empty(size + size // 8, np.int64)
                 todo[:] = True
-            grid.build(chunk_cols, start, nb0, nb1, pbc, self._ts, self._ws, self._rs,
+            grid.build(chunk_cols, start, nb0, nb1, pbc, tz, self._ws, self._rs,
                        self._ls, use_label, cell, stencil, rmax, reach, inv_w2,
                        not minimum, self._vstart, self._vstop, self._vb, self._vs, reg_start,
                        cap, todo, need, tested)

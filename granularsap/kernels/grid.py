@@ -342,42 +342,99 @@ def _lower_bound(arr, lo, hi, v):
 
 @ijit
 def _keep(w, p, q, cell, s0, s1, s2, rs, ls, use_label, self_images, reach):
-    if p == q:
-        if not self_images:
-            return False
-    if use_label and ls[p] == ls[q]:
-        return False
-    return _distance(w, p, q, cell, s0, s1, s2) <= rs[p] + rs[q] + reach
+    """Build test: a superset of the exact test (squared, with a relative hair of
+    slack; ``reach`` carries the rounding guard), computed without branches."""
+    dx, dy, dz = _separation(w, p, q, cell, s0, s1, s2)
+    thr = rs[p] + rs[q] + reach
+    ok = dx * dx + dy * dy + dz * dz <= thr * thr * (1.0 + 1e-12)
+    ok = ok & ((p != q) | self_images)
+    if use_label:
+        ok = ok & (ls[p] != ls[q])
+    return ok
 
 
 @jit
-def _build_chunk(c_lo, c_hi, start, nb0, nb1, pbc, ts, ws, rs, ls, use_label, cell, stencil,
+def _build_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, ws, rs, ls, use_label, cell, stencil,
                  rmax, reach, inv_w2, self_images, vstart, vstop, vb, vs, base, cap):
     """Sweep the columns ``[c_lo, c_hi)``; writes at most ``cap`` entries from
-    ``base``; returns (entries needed, candidates tested)."""
+    ``base``; returns (entries needed, candidates tested).
+
+    Along the sweep axis a column is read as the infinite periodic sequence
+    ``tz[q] + k`` (``k`` counts wraps; just ``k = 0`` on an open axis).  For
+    each stencil column one pointer walks that sequence: it is the first
+    element at or above ``tz[p] - dmax``, which only grows as ``p`` walks its
+    own sorted column, so no per-particle search is needed.
+    """
     pos = 0
     tested = 0
-    tz = ts[:, 2]
     p2 = pbc[2]
+    n_st = stencil.shape[0]
+    col2_of = np.empty(n_st, np.int64)
+    sh0 = np.empty(n_st, np.int64)
+    sh1 = np.empty(n_st, np.int64)
+    ptr_q = np.empty(n_st, np.int64)
+    ptr_k = np.empty(n_st, np.int64)
+    dmax = (2.0 * rmax + reach) * inv_w2
     for col in range(c_lo, c_hi):
-        b0 = col // nb1
-        b1 = col - b0 * nb1
         lo_c = start[col]
         hi_c = start[col + 1]
+        if lo_c == hi_c:
+            continue
+        b0 = col // nb1
+        b1 = col - b0 * nb1
+        # the stencil's columns, their lattice shifts and their start pointers
+        n_live = 0
+        first = tz[lo_c] - dmax
+        for o in range(n_st):
+            c0 = b0 + stencil[o, 0]
+            c1 = b1 + stencil[o, 1]
+            s0 = 0
+            s1 = 0
+            if pbc[0]:
+                s0 = c0 // nb0
+                c0 -= s0 * nb0
+            elif c0 < 0 or c0 >= nb0:
+                continue
+            if pbc[1]:
+                s1 = c1 // nb1
+                c1 -= s1 * nb1
+            elif c1 < 0 or c1 >= nb1:
+                continue
+            col2 = c0 * nb1 + c1
+            lo2 = start[col2]
+            hi2 = start[col2 + 1]
+            if lo2 == hi2:
+                continue
+            k = int(math.floor(first)) - 1 if p2 else 0
+            q = _lower_bound(tz, lo2, hi2, first - k)
+            if q == hi2:
+                if not p2:
+                    continue
+                q = lo2
+                k += 1
+            col2_of[n_live] = col2
+            sh0[n_live] = s0
+            sh1[n_live] = s1
+            ptr_q[n_live] = q
+            ptr_k[n_live] = k
+            n_live += 1
         for p in range(lo_c, hi_c):
             vstart[p] = base + min(pos, cap)
             tp = tz[p]
             delta = (rs[p] + rmax + reach) * inv_w2
+            hi_v = tp + delta
             # the column itself: forward in sorted order (and over the periodic wrap)
             q = p + 1
             k = 0
+            kf = 0.0
             while True:
                 if q == hi_c:
                     if not p2:
                         break
                     q = lo_c
                     k += 1
-                if tz[q] + k - tp > delta:
+                    kf += 1.0
+                if tz[q] + kf > hi_v:
                     break
                 tested += 1
                 ok = _keep(ws, p, q, cell, 0, 0, k, rs, ls, use_label, self_images, reach)
@@ -387,52 +444,53 @@ def _build_chunk(c_lo, c_hi, start, nb0, nb1, pbc, ts, ws, rs, ls, use_label, ce
                 pos += np.int64(ok)
                 q += 1
             # half stencil of neighbouring columns
-            for o in range(stencil.shape[0]):
-                c0 = b0 + stencil[o, 0]
-                c1 = b1 + stencil[o, 1]
-                s0 = 0
-                s1 = 0
-                if pbc[0]:
-                    s0 = c0 // nb0
-                    c0 -= s0 * nb0
-                elif c0 < 0 or c0 >= nb0:
-                    continue
-                if pbc[1]:
-                    s1 = c1 // nb1
-                    c1 -= s1 * nb1
-                elif c1 < 0 or c1 >= nb1:
-                    continue
-                col2 = c0 * nb1 + c1
+            lo_v = tp - dmax
+            for o in range(n_live):
+                col2 = col2_of[o]
                 lo2 = start[col2]
                 hi2 = start[col2 + 1]
-                if lo2 == hi2:
+                q = ptr_q[o]
+                k = ptr_k[o]
+                if q >= hi2:  # open sweep axis: exhausted
                     continue
-                lo_v = tp - delta
-                hi_v = tp + delta
-                if p2:
-                    k_lo = int(math.floor(lo_v)) - 1
-                    k_hi = int(math.floor(hi_v))
-                else:
-                    k_lo = 0
-                    k_hi = 0
-                for k in range(k_lo, k_hi + 1):
-                    q = _lower_bound(tz, lo2, hi2, lo_v - k)
-                    top = hi_v - k
-                    while q < hi2 and tz[q] <= top:
-                        tested += 1
-                        ok = _keep(ws, p, q, cell, s0, s1, k, rs, ls, use_label, self_images,
-                                   reach)
-                        if pos < cap:
-                            vb[base + pos] = q
-                            vs[base + pos] = _encode(s0, s1, k)
-                        pos += np.int64(ok)
-                        q += 1
+                kf = float(k)
+                while tz[q] + kf < lo_v:
+                    q += 1
+                    if q == hi2:
+                        if not p2:
+                            break
+                        q = lo2
+                        k += 1
+                        kf += 1.0
+                ptr_q[o] = q
+                ptr_k[o] = k
+                if q >= hi2:
+                    continue
+                s0 = sh0[o]
+                s1 = sh1[o]
+                while True:
+                    if tz[q] + kf > hi_v:
+                        break
+                    tested += 1
+                    ok = _keep(ws, p, q, cell, s0, s1, k, rs, ls, use_label, self_images,
+                               reach)
+                    if pos < cap:
+                        vb[base + pos] = q
+                        vs[base + pos] = _encode(s0, s1, k)
+                    pos += np.int64(ok)
+                    q += 1
+                    if q == hi2:
+                        if not p2:
+                            break
+                        q = lo2
+                        k += 1
+                        kf += 1.0
             vstop[p] = base + min(pos, cap)
     return pos, tested
 
 
 @pjit
-def build(chunk_cols, start, nb0, nb1, pbc, ts, ws, rs, ls, use_label, cell, stencil, rmax,
+def build(chunk_cols, start, nb0, nb1, pbc, tz, ws, rs, ls, use_label, cell, stencil, rmax,
           reach, inv_w2, self_images, vstart, vstop, vb, vs, reg_start, reg_cap, todo,
           need, tested):
     """``_build_chunk`` for every chunk marked in ``todo``; ``need[c]`` entries."""
@@ -441,7 +499,7 @@ def build(chunk_cols, start, nb0, nb1, pbc, ts, ws, rs, ls, use_label, cell, ste
         if not todo[c]:
             continue
         need[c], tested[c] = _build_chunk(
-            chunk_cols[c], chunk_cols[c + 1], start, nb0, nb1, pbc, ts, ws, rs, ls,
+            chunk_cols[c], chunk_cols[c + 1], start, nb0, nb1, pbc, tz, ws, rs, ls,
             use_label, cell, stencil, rmax, reach, inv_w2, self_images, vstart, vstop, vb,
             vs, reg_start[c], reg_cap[c])
 
