@@ -21,11 +21,33 @@ MDAnalysis would use (``method=None`` chooses like MDAnalysis does):
 These are ports of MDAnalysis's ``calc_distances.h`` and ``nsgrid.pyx``
 written with numpy; they need MDAnalysis only for ``apply_PBC`` and
 ``triclinic_vectors``.
+
+Cutoffs beyond half the cell
+----------------------------
+MDAnalysis's answer for any cutoff is one minimum image per pair.  When the
+cutoff exceeds half the smallest perpendicular cell width, a cell-list or
+sweep search would have to enumerate several images of every particle, so
+:func:`min_image_pairs` tests every pair directly instead (a brute-force
+kernel): fractional separation reduced to ``[-0.5, 0.5)``, a pair skipped at
+once if one fractional component times its perpendicular width already exceeds
+the reach (a lower bound on every image's distance), otherwise the true
+nearest image (triclinic cells: the images ``n`` with
+``|n_k| <= |r| / w_k + 1/2`` around the reduced separation ``r``).  Cost
+O(n m) distance evaluations in two passes (count, then fill at prefix-sum
+offsets) over chunks of rows balanced by work, so memory is the output and no
+more; the output order does not depend on the thread count.  Beyond half the
+width a large share of all pairs is in range anyway (about half of them in a
+cube), so the brute force is within a small factor of writing the output.
 """
 
 from __future__ import annotations
 
+import math
+
+import numba
 import numpy as np
+
+from ._numba import ijit, jit, pjit
 
 #: Relative widening of the candidate search (float32 rounding is ~6e-8).
 WIDEN = 1e-5
@@ -147,3 +169,162 @@ def decide(ref32, conf32, a, b, box32, max_cutoff, method):
         return np.sqrt(d2), d2 <= np.float64(c * c)
     d = np.sqrt(d2)
     return d, d <= max_cutoff
+
+
+# ---------------------------------------------------------------------------
+# brute-force minimum image for cutoffs beyond half the cell
+
+#: pair tests below which the serial kernel runs (thread start-up dominates)
+_PARALLEL_MIN = 1 << 16
+
+
+@ijit
+def _min_image_d2(fa, fb, i, j, cell, widths, ortho, reach):
+    """Squared minimum-image distance of ``fa[i]`` and ``fb[j]`` (fractional
+    coordinates), or -1.0 if it certainly exceeds ``reach``."""
+    s0 = fb[j, 0] - fa[i, 0]
+    s1 = fb[j, 1] - fa[i, 1]
+    s2 = fb[j, 2] - fa[i, 2]
+    s0 -= math.floor(s0 + 0.5)
+    s1 -= math.floor(s1 + 0.5)
+    s2 -= math.floor(s2 + 0.5)
+    # |s_k| * w_k is the separation's extent across face k: a lower bound
+    if abs(s0) * widths[0] > reach or abs(s1) * widths[1] > reach or (
+            abs(s2) * widths[2] > reach):
+        return -1.0
+    x = s0 * cell[0, 0] + s1 * cell[1, 0] + s2 * cell[2, 0]
+    y = s0 * cell[0, 1] + s1 * cell[1, 1] + s2 * cell[2, 1]
+    z = s0 * cell[0, 2] + s1 * cell[1, 2] + s2 * cell[2, 2]
+    d2 = x * x + y * y + z * z
+    if ortho:
+        return d2
+    r = math.sqrt(d2)
+    m0 = int(r / widths[0] + 0.5)
+    m1 = int(r / widths[1] + 0.5)
+    m2 = int(r / widths[2] + 0.5)
+    for n0 in range(-m0, m0 + 1):
+        t0 = s0 + n0
+        for n1 in range(-m1, m1 + 1):
+            t1 = s1 + n1
+            for n2 in range(-m2, m2 + 1):
+                if n0 == 0 and n1 == 0 and n2 == 0:
+                    continue
+                t2 = s2 + n2
+                x = t0 * cell[0, 0] + t1 * cell[1, 0] + t2 * cell[2, 0]
+                y = t0 * cell[0, 1] + t1 * cell[1, 1] + t2 * cell[2, 1]
+                z = t0 * cell[0, 2] + t1 * cell[1, 2] + t2 * cell[2, 2]
+                e2 = x * x + y * y + z * z
+                if e2 < d2:
+                    d2 = e2
+    return d2
+
+
+@jit
+def _min_image_rows(r_lo, r_hi, fa, fb, same, cell, widths, ortho, reach, write, o,
+                    out_a, out_b, out_d):
+    """Pairs ``(i, j)`` with ``r_lo <= i < r_hi`` (``j > i`` if ``same``) whose
+    minimum-image distance is ``<= reach``; written from ``o`` if ``write``.
+    Returns how many."""
+    reach2 = reach * reach
+    count = 0
+    m = fb.shape[0]
+    for i in range(r_lo, r_hi):
+        j0 = i + 1 if same else 0
+        for j in range(j0, m):
+            d2 = _min_image_d2(fa, fb, i, j, cell, widths, ortho, reach)
+            if d2 >= 0.0 and d2 <= reach2:
+                if write:
+                    out_a[o + count] = i
+                    out_b[o + count] = j
+                    out_d[o + count] = math.sqrt(d2)
+                count += 1
+    return count
+
+
+@pjit
+def _min_image_parallel(bounds, fa, fb, same, cell, widths, ortho, reach, write, offsets,
+                        counts, out_a, out_b, out_d):
+    """``_min_image_rows`` over the row chunks ``bounds[c]:bounds[c + 1]``."""
+    for c in numba.prange(bounds.shape[0] - 1):
+        counts[c] = _min_image_rows(bounds[c], bounds[c + 1], fa, fb, same, cell, widths,
+                                    ortho, reach, write, offsets[c], out_a, out_b, out_d)
+
+
+def _row_chunks(n, m, same, n_threads):
+    """Chunk boundaries over ``n`` rows with about equal pair tests each."""
+    chunks = int(min(8 * n_threads, max(1, n)))
+    work = np.full(n, m, dtype=np.float64)
+    if same:
+        work -= np.arange(1, n + 1)
+    cum = np.concatenate([[0.0], np.cumsum(work)])
+    targets = np.linspace(0.0, cum[-1], chunks + 1)
+    bounds = np.searchsorted(cum, targets, side="left").astype(np.int64)
+    bounds[0], bounds[-1] = 0, n
+    return np.unique(bounds)
+
+
+def min_image_pairs(ref, conf, cell, reach, n_threads):
+    """Every pair within ``reach`` (minimum image), testing all pairs.
+
+    Parameters
+    ----------
+    ref : (n, 3) ndarray of float64
+    conf : (m, 3) ndarray of float64 or None
+        None: pairs ``i < j`` within ``ref``.
+    cell : (3, 3) ndarray of float64
+        Rows are the cell vectors (all three axes periodic).
+    reach : float
+        Inclusive; ``d <= reach`` up to the rounding of ``reach**2``.
+    n_threads : int
+        Threads in use (from ``_numba.num_threads``).
+
+    Returns
+    -------
+    a, b : (k,) ndarray of int64
+        Indices into ``ref`` and ``conf`` (``a < b`` if ``conf`` is None).
+    d : (k,) ndarray of float64
+        Minimum-image distances.
+    """
+    from . import periodic
+
+    same = conf is None
+    cell = np.ascontiguousarray(cell, dtype=np.float64)
+    inv = np.linalg.inv(cell)
+    fa = ref @ inv
+    fa -= np.floor(fa)
+    fb = fa if same else conf @ inv
+    if not same:
+        fb -= np.floor(fb)
+    fa = np.ascontiguousarray(fa)
+    fb = np.ascontiguousarray(fb)
+    widths = np.ascontiguousarray(periodic.perpendicular_widths(cell), dtype=np.float64)
+    ortho = bool(np.all(cell == np.diag(np.diag(cell))))
+    n, m = len(fa), len(fb)
+    tests = n * (n - 1) // 2 if same else n * m
+    reach = float(reach)
+    empty_i = np.empty(0, np.int64)
+    empty_d = np.empty(0, np.float64)
+    if tests < _PARALLEL_MIN or n_threads <= 1:
+        k = _min_image_rows(0, n, fa, fb, same, cell, widths, ortho, reach, False, 0,
+                            empty_i, empty_i, empty_d)
+        a = np.empty(k, np.int64)
+        b = np.empty(k, np.int64)
+        d = np.empty(k, np.float64)
+        if k:
+            _min_image_rows(0, n, fa, fb, same, cell, widths, ortho, reach, True, 0, a, b, d)
+        return a, b, d
+    bounds = _row_chunks(n, m, same, n_threads)
+    counts = np.zeros(len(bounds) - 1, dtype=np.int64)
+    zero = np.zeros(len(bounds) - 1, dtype=np.int64)
+    _min_image_parallel(bounds, fa, fb, same, cell, widths, ortho, reach, False, zero, counts,
+                        empty_i, empty_i, empty_d)
+    offsets = np.zeros(len(counts), dtype=np.int64)
+    np.cumsum(counts[:-1], out=offsets[1:])
+    k = int(counts.sum())
+    a = np.empty(k, np.int64)
+    b = np.empty(k, np.int64)
+    d = np.empty(k, np.float64)
+    if k:
+        _min_image_parallel(bounds, fa, fb, same, cell, widths, ortho, reach, True, offsets,
+                            counts, a, b, d)
+    return a, b, d

@@ -15,16 +15,28 @@ granularsap's Sweep and Prune, with the cutoff widened by 1e-5; when MDAnalysis 
 installed every candidate is then decided with the arithmetic of the method
 MDAnalysis would run (``method``, or MDAnalysis's own choice when it is None; see
 ``granularsap._mda_arith``), so pairs at the cutoff agree with MDAnalysis too.
-``backend`` is accepted for signature compatibility and ignored.
-``granularsap.mda.Contacts`` (the parallel ``AnalysisBase``) lives in
-``granularsap.mda_analysis`` and is re-exported here on first access.
+``backend`` is validated like MDAnalysis's (``'serial'``, ``'OpenMP'``,
+``'distopia'``) and otherwise ignored; an unknown ``method`` raises a
+``KeyError`` as in MDAnalysis (also a ``ValueError``, with a message naming
+``method``).  ``granularsap.mda.Contacts`` (the parallel ``AnalysisBase``) lives
+in ``granularsap.mda_analysis`` and is re-exported here on first access.
+
+Cutoffs beyond half the smallest perpendicular cell width get one minimum
+image per pair, as in MDAnalysis: every pair is tested by a brute-force kernel
+(``_mda_arith.min_image_pairs``) in memory proportional to the output, where
+MDAnalysis's own ``nsgrid`` choice would raise "Cutoff ... too large for box";
+pairs at the cutoff are then decided with the arithmetic of MDAnalysis's
+``bruteforce`` method.
 
 Differences: pairs of ``self_capped_distance`` always have ``i < j`` (MDAnalysis's
 grid method returns some pairs as ``j, i``), row order is unspecified, and the
 minimum image of a triclinic cell is the true nearest image (MDAnalysis searches
-the 27 neighbouring images of the wrapped separation only).  MDAnalysis is not
-needed to run these functions; AtomGroups are accepted wherever MDAnalysis
-accepts them.
+the 27 neighbouring images of the wrapped separation only).  Coordinates beyond
+the float32 range are refused with an error naming the argument (MDAnalysis
+turns them into inf).  ``backend`` is checked for every method (MDAnalysis checks
+it only on the paths that use it).  MDAnalysis is not needed to run these
+functions; AtomGroups are accepted wherever MDAnalysis accepts them.  See
+docs/dropins.md.
 """
 
 from __future__ import annotations
@@ -50,11 +62,53 @@ def __getattr__(name):
 _PBC = np.ones(3, dtype=bool)
 
 
+_METHODS = ("bruteforce", "pkdtree", "nsgrid")
+_BACKENDS = ("serial", "openmp", "distopia")
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
+class _UnknownMethodError(KeyError, ValueError):
+    """An unknown ``method``: a KeyError like MDAnalysis's, and a ValueError."""
+
+    def __str__(self):
+        return str(self.args[0])
+
+
+class _MethodTypeError(TypeError, AttributeError):
+    """A ``method`` that is not a string: MDAnalysis raises AttributeError."""
+
+
+def _check_method(method):
+    if method is None:
+        return None
+    if not isinstance(method, str):
+        raise _MethodTypeError(f"method must be a string or None, got "
+                               f"{type(method).__name__}")
+    if method.lower() not in _METHODS:
+        raise _UnknownMethodError(f"method must be one of 'bruteforce', 'nsgrid', 'pkdtree' "
+                                  f"(any case) or None, got {method!r}")
+    return method.lower()
+
+
+def _check_backend(backend):
+    if not isinstance(backend, str):
+        raise TypeError(f"backend must be a string, got {type(backend).__name__}")
+    if backend.lower() not in _BACKENDS:
+        raise ValueError(f"backend must be one of 'serial', 'OpenMP', 'distopia' (any case), "
+                         f"got {backend!r}")
+
+
 def _coords(x, name):
     if hasattr(x, "positions") and not isinstance(x, np.ndarray):
         x = x.positions
     arr = as_coords(x, name)
     # MDAnalysis computes from float32 coordinates (check_coords)
+    big = np.abs(arr) > _F32_MAX
+    if big.any():
+        row = int(np.flatnonzero(big.any(axis=1))[0])
+        val = float(arr[row][big[row]][0])
+        raise ValueError(f"{name} must be within float32 range (|x| <= {_F32_MAX:.4g}; "
+                         f"MDAnalysis computes in float32), got {val!r} in row {row}")
     return arr.astype(np.float32).astype(np.float64)
 
 
@@ -90,20 +144,49 @@ def _mda_box32(box):
     return (None if box is None else np.asarray(box, dtype=np.float32),)
 
 
-def _decide_like_mdanalysis(ref, conf, a, b, dist, box32, max_cutoff, method):
+def _decide_like_mdanalysis(ref, conf, a, b, dist, box32, max_cutoff, method,
+                            beyond=False):
     """Re-decide candidates ``(ref[a], conf[b])`` with the arithmetic of the
-    MDAnalysis method that would run (granularsap._mda_arith)."""
+    MDAnalysis method that would run (granularsap._mda_arith).
+
+    ``beyond``: the cutoff exceeds half the cell, where MDAnalysis's nsgrid
+    raises "Cutoff ... too large for box"; the drop-in answers with the
+    arithmetic of MDAnalysis's bruteforce method instead.
+    """
     ref32 = ref.astype(np.float32)
     conf32 = ref32 if conf is None else conf.astype(np.float32)
     chosen = _mda_arith.choose_method(len(ref32), None if conf is None else len(conf32),
                                       max_cutoff, box32, ref32 if conf is None else
                                       np.concatenate([ref32, conf32]), method)
+    if beyond and chosen == "nsgrid":
+        chosen = "bruteforce"
     decided = _mda_arith.decide(ref32, conf32, a, b, box32, max_cutoff, chosen)
     if decided is None:  # pkdtree: decided inside scipy; keep float64 minimum image
         keep = dist <= max_cutoff
         return a[keep], b[keep], dist[keep]
     d, keep = decided
     return a[keep], b[keep], d[keep]
+
+
+def _beyond_half_cell(cell, reach):
+    """True if ``reach`` exceeds half the smallest perpendicular width of ``cell``:
+    the pair search then tests every pair (``_mda_arith.min_image_pairs``)
+    instead of enumerating periodic images."""
+    return cell is not None and reach > 0.5 * float(periodic.perpendicular_widths(cell).min())
+
+
+def _brute(ref, conf, cell, reach, max_cutoff, emulate, n_threads):
+    """Candidates by brute-force minimum image; without MDAnalysis's arithmetic
+    the float64 distance decides (``d <= max_cutoff``)."""
+    from ._numba import num_threads
+
+    with num_threads(n_threads) as threads:
+        a, b, dist = _mda_arith.min_image_pairs(ref, conf, cell, reach * (1.0 + 1e-12),
+                                                threads)
+    if emulate is None:
+        keep = dist <= max_cutoff
+        a, b, dist = a[keep], b[keep], dist[keep]
+    return a, b, dist
 
 
 def _finish(i, j, dist, min_cutoff, return_distances):
@@ -132,10 +215,12 @@ def self_capped_distance(reference, max_cutoff, min_cutoff=None, box=None, metho
         Exclusive lower cutoff.
     box : (6,) array_like of float, optional
         ``[lx, ly, lz, alpha, beta, gamma]``; minimum image convention.
-    method : str, optional
-        MDAnalysis's method whose arithmetic decides pairs at the cutoff.
+    method : {'bruteforce', 'nsgrid', 'pkdtree'}, optional
+        MDAnalysis's method whose arithmetic decides pairs at the cutoff (any
+        case, as in MDAnalysis).
     backend : str, optional
-        Accepted for compatibility; ignored.
+        ``'serial'``, ``'OpenMP'`` or ``'distopia'`` (any case); checked, then
+        ignored.
     return_distances : bool, optional
     n_threads : int, optional
         numba threads (granularsap extension).
@@ -146,6 +231,16 @@ def self_capped_distance(reference, max_cutoff, min_cutoff=None, box=None, metho
         ``i < j``, row order unspecified.
     distances : (k,) ndarray of float64
         Only if ``return_distances``.
+
+    Raises
+    ------
+    KeyError
+        Unknown ``method`` (as MDAnalysis; the exception is also a ValueError).
+    ValueError
+        Bad shapes, NaN/inf or beyond-float32 coordinates, a negative cutoff,
+        an invalid box or an unknown ``backend``.
+    TypeError
+        Non-numeric input, a ``method`` or ``backend`` that is not a string.
 
     Examples
     --------
@@ -160,15 +255,21 @@ def self_capped_distance(reference, max_cutoff, min_cutoff=None, box=None, metho
     pos = _coords(reference, "reference")
     max_cutoff, min_cutoff = _cutoffs(max_cutoff, min_cutoff)
     cell = _box(box)
+    method = _check_method(method)
+    _check_backend(backend)
     n_threads = check_n_threads(n_threads)
     emulate = _mda_box32(box) if len(pos) > 1 else None
     reach = max_cutoff * (1.0 + _mda_arith.WIDEN) if emulate is not None else max_cutoff
-    rad = np.full(len(pos), 0.5 * reach)
-    a, b, _, dist, _ = _search(pos, rad, 0.0, cell, _PBC, n_threads=n_threads,
-                               minimum_image="reduce", what="max_cutoff")
+    beyond = _beyond_half_cell(cell, reach)
+    if beyond:
+        a, b, dist = _brute(pos, None, cell, reach, max_cutoff, emulate, n_threads)
+    else:
+        rad = np.full(len(pos), 0.5 * reach)
+        a, b, _, dist, _ = _search(pos, rad, 0.0, cell, _PBC, n_threads=n_threads,
+                                   minimum_image="reduce", what="max_cutoff")
     if emulate is not None:
         a, b, dist = _decide_like_mdanalysis(pos, None, a, b, dist, emulate[0], max_cutoff,
-                                             method)
+                                             method, beyond)
     return _finish(a, b, dist, min_cutoff, return_distances)
 
 
@@ -187,10 +288,12 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
     min_cutoff : float, optional
         Exclusive lower cutoff.
     box : (6,) array_like of float, optional
-    method : str, optional
-        MDAnalysis's method whose arithmetic decides pairs at the cutoff.
+    method : {'bruteforce', 'nsgrid', 'pkdtree'}, optional
+        MDAnalysis's method whose arithmetic decides pairs at the cutoff (any
+        case, as in MDAnalysis).
     backend : str, optional
-        Accepted for compatibility; ignored.
+        ``'serial'``, ``'OpenMP'`` or ``'distopia'`` (any case); checked, then
+        ignored.
     return_distances : bool, optional
     n_threads : int, optional
 
@@ -200,6 +303,11 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
         Column 0 indexes ``reference``, column 1 ``configuration``.
     distances : (k,) ndarray of float64
         Only if ``return_distances``.
+
+    Raises
+    ------
+    KeyError, ValueError, TypeError
+        As :func:`self_capped_distance`.
 
     Examples
     --------
@@ -214,6 +322,8 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
     conf = _coords(configuration, "configuration")
     max_cutoff, min_cutoff = _cutoffs(max_cutoff, min_cutoff)
     cell = _box(box)
+    method = _check_method(method)
+    _check_backend(backend)
     n_threads = check_n_threads(n_threads)
     n = len(ref)
     if n == 0 or len(conf) == 0:
@@ -224,17 +334,21 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
     # larger set produces no pairs among itself in the broad phase
     emulate = _mda_box32(box)
     reach = max_cutoff * (1.0 + _mda_arith.WIDEN) if emulate is not None else max_cutoff
-    pos = np.concatenate([ref, conf])
-    rad = np.zeros(len(pos))
-    if n <= len(conf):
-        rad[:n] = reach
+    beyond = _beyond_half_cell(cell, reach)
+    if beyond:
+        a, b, dist = _brute(ref, conf, cell, reach, max_cutoff, emulate, n_threads)
     else:
-        rad[n:] = reach
-    a, b, _, dist, _ = _search(pos, rad, 0.0, cell, _PBC, n_threads=n_threads,
-                               minimum_image="reduce", what="max_cutoff", split=n,
-                               reach_max=reach)
-    b = b - n
+        pos = np.concatenate([ref, conf])
+        rad = np.zeros(len(pos))
+        if n <= len(conf):
+            rad[:n] = reach
+        else:
+            rad[n:] = reach
+        a, b, _, dist, _ = _search(pos, rad, 0.0, cell, _PBC, n_threads=n_threads,
+                                   minimum_image="reduce", what="max_cutoff", split=n,
+                                   reach_max=reach)
+        b = b - n
     if emulate is not None:
         a, b, dist = _decide_like_mdanalysis(ref, conf, a, b, dist, emulate[0], max_cutoff,
-                                             method)
+                                             method, beyond)
     return _finish(a, b, dist, min_cutoff, return_distances)
