@@ -99,6 +99,11 @@ class SweepAndPrune:
     swap_threshold : float
         Dispersion D (equation 1 of the paper) of a sweep axis's sort buckets
         above which the axis is swapped out.
+    path : {"auto", "sequential", "parallel"}
+        ``"sequential"`` runs Algorithm 1 as written, ``"parallel"`` Algorithms
+        2-4 (with any number of threads, one included); ``"auto"`` (default)
+        takes the parallel path.  For benchmarks and checks; results are the
+        same.
 
     Notes
     -----
@@ -118,7 +123,7 @@ class SweepAndPrune:
     1
     """
 
-    def __init__(self, *, axes="auto", n_threads=None, swap_threshold=0.25):
+    def __init__(self, *, axes="auto", n_threads=None, swap_threshold=0.25, path="auto"):
         self._axes, self._dynamic = _parse_axes(axes)
         self.n_threads = check_n_threads(n_threads)
         self.swap_threshold = float(swap_threshold)
@@ -127,7 +132,9 @@ class SweepAndPrune:
         #: Most bins of the third-axis sharding of the pairing active lists
         #: (1 = the paper's Algorithm 4 exactly).
         self.max_bins = 64
-        self._path = None  # "sequential" | "parallel" | None (choose by size/threads)
+        if path not in ("auto", "sequential", "parallel"):
+            raise ValueError(f"path must be 'auto', 'sequential' or 'parallel', got {path!r}")
+        self._path = None if path == "auto" else path
         self._partitions = None  # override of the number of partitions (tests)
         #: Boxes are cubes around spheres: keep pairs whose inscribed spheres
         #: (nearly) touch instead of every overlapping pair (a superset of the

@@ -25,11 +25,10 @@ import re
 import resource
 import time
 
+import numba
 import numpy as np
 
 from .. import SweepAndPrune, box_overlaps
-from .._numba import max_threads
-from ..api import _box_overlaps_path
 
 DENSITIES = (0.05, 0.15, 0.25, 0.35)
 SIZES = (1 << 18, 1 << 19, 1 << 20)
@@ -172,7 +171,7 @@ def _drive(engine, scene, frames, threads, check_every, progress, label):
                "dispersion": {str(k): v for k, v in st["dispersion"].items()},
                "swaps": st["swaps"]}
         if check_every and f % check_every == 0:
-            ref = _box_overlaps_path(lower, upper, path="parallel", n_threads=1)
+            ref = SweepAndPrune(path="parallel", n_threads=1).update(lower, upper)
             rec["checked"] = bool(len(ref) == len(pairs) and np.array_equal(
                 _canon(ref), _canon(pairs)))
             if not rec["checked"]:
@@ -207,7 +206,7 @@ def _time_path(lower, upper, path, threads, repeats=1):
     best = math.inf
     for _ in range(repeats):
         t0 = time.perf_counter()
-        _box_overlaps_path(lower, upper, path=path, n_threads=threads)
+        SweepAndPrune(path=path, n_threads=threads).update(lower, upper)
         best = min(best, time.perf_counter() - t0)
     return best
 
@@ -219,8 +218,8 @@ def uniform_experiment(n, density, frames, threads, seed, progress, sequential=T
     box_overlaps(lower[:2048], upper[:2048], n_threads=threads)
     fresh = _time_fresh(lower, upper, threads)
     # warm every path (JIT, first-touch) outside the timings
-    _box_overlaps_path(lower[:5000], upper[:5000], path="sequential", n_threads=1)
-    _box_overlaps_path(lower[:5000], upper[:5000], path="parallel", n_threads=1)
+    SweepAndPrune(path="sequential", n_threads=1).update(lower[:5000], upper[:5000])
+    SweepAndPrune(path="parallel", n_threads=1).update(lower[:5000], upper[:5000])
     records, engine = run_scenario(scene, frames, threads, check_every=max(1, frames // 4),
                                    progress=progress, label=f"n={n} d={density}")
     steady = _steady(records)
@@ -288,7 +287,7 @@ def _machine():
 
     info = {"python": platform.python_version(), "numpy": np.__version__,
             "numba": numba.__version__, "machine": platform.machine(),
-            "cores": max_threads()}
+            "cores": numba.config.NUMBA_NUM_THREADS}
     try:
         with open("/proc/cpuinfo") as fh:
             for line in fh:
@@ -349,7 +348,7 @@ def _plot(results, path):
 def run_paper(args):
     """Entry point of ``granularsap bench paper``; returns an exit code."""
     quick = bool(getattr(args, "quick", False))
-    threads = getattr(args, "threads", None) or max_threads()
+    threads = getattr(args, "threads", None) or numba.config.NUMBA_NUM_THREADS
     sizes = _listed(getattr(args, "sizes", None), _parse_size) or (
         [1 << 14, 1 << 15] if quick else list(SIZES))
     densities = _listed(getattr(args, "density", None), float) or (

@@ -212,116 +212,69 @@ class GranularSAP(Peer):
 
 
 class GranularSAPSteady(Peer):
-    """One ``SweepAndPrune`` engine reused across frames (steady state).
+    """One stateful search kept across frames: buffers, column order and (with
+    ``rebuild_margin``) a Verlet list are reused.
 
-    Spheres become boxes ``x -/+ h`` (``h = cutoff / 2`` or ``h = r_i``); the
-    engine's candidates are filtered with the exact distance test.  In a
-    periodic orthorhombic cell, particles within the search radius of the
-    lower faces get ghost copies shifted by +L (one per combination of axes);
-    an image pair is kept only when the two images share no shifted axis, so
-    each pair comes out once.  The number of boxes stays fixed between frames:
-    unused ghost slots are parked far outside the cell on a diagonal where
-    they overlap nothing; when the ghosts outgrow the slots the engine is
-    rebuilt with more (counted in ``rebuilds``).
+    ``NeighborSearch`` for cutoff workloads, ``ContactSearch`` for sphere
+    contacts, ``SweepAndPrune`` for boxes.  With the default margin 0 every
+    frame is a full rebuild into reused memory (what a DEM code that asks for
+    contacts every step pays); ``granularsap-verlet`` keeps a Verlet list.
     """
 
     name = "granularsap-steady"
     module = "granularsap"
     dist = "granularsap"
-    description = "SweepAndPrune.update reused across frames"
+    description = "NeighborSearch / ContactSearch / SweepAndPrune kept across frames"
     stateful = True
     threaded = True
-
-    def unsupported(self, workload):
-        why = super().unsupported(workload)
-        if why or workload.box is None:
-            return why
-        if not workload.orthorhombic:
-            return "ghost images are implemented for orthorhombic cells only"
-        if workload.search_radius() * 2 >= min(workload.box[:3]):
-            return "search radius is not below half the cell"
-        return None
+    #: Verlet margin, as a fraction of the workload's search radius
+    margin_fraction = 0.0
 
     def setup(self, workload, n_threads):
         import granularsap
 
         super().setup(workload, n_threads)
-        self._new_engine = lambda: granularsap.SweepAndPrune(n_threads=n_threads)
-        self.engine = self._new_engine()
+        margin = self.margin_fraction * workload.search_radius()
+        if workload.kind == "boxes":
+            self.engine = granularsap.SweepAndPrune(n_threads=n_threads)
+        elif workload.kind == "contacts":
+            self.engine = granularsap.ContactSearch(rebuild_margin=margin, n_threads=n_threads)
+        else:
+            self.engine = granularsap.NeighborSearch(workload.cutoff, rebuild_margin=margin,
+                                                     quantities="P", n_threads=n_threads)
         self.rebuilds = 0
-        self.capacity = None
-        wl = workload
-        if wl.kind == "cutoff":
-            self.half = np.full((wl.n, 1), wl.cutoff / 2.0)
-        elif wl.kind == "contacts":
-            self.half = wl.radii[:, None]
-        self.stats = None
 
     def last_stats(self):
-        return self.stats
-
-    def _update(self, lower, upper):
-        pairs = self.engine.update(lower, upper)
         stats = getattr(self.engine, "stats", None)
-        self.stats = dict(stats) if stats else None
-        return np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        return dict(stats) if stats else None
 
     def run(self, frame):
         wl = self.workload
         if wl.kind == "boxes":
             lower, upper = wl.boxes(frame)
-            return self._update(lower, upper)
+            return self.engine.update(lower, upper)
         pos = wl.frames[frame]
-        if wl.box is None:
-            pairs = self._update(pos - self.half, pos + self.half)
-            return exact_filter(wl, frame, pairs)
-        return self._run_periodic(pos)
-
-    def _run_periodic(self, pos):
-        wl = self.workload
-        lengths = wl.box[:3]
-        radius = wl.search_radius() * (1.0 + _WIDEN)
-        pos = np.mod(pos, lengths)
-        near = pos < radius  # (n, 3): close to a lower face on that axis
-        idx = [np.arange(wl.n)]
-        shift = [np.zeros(wl.n, np.int8)]
-        for code in range(1, 8):
-            axes = [a for a in range(3) if code >> a & 1]
-            sel = np.flatnonzero(np.all(near[:, axes], axis=1))
-            idx.append(sel)
-            shift.append(np.full(len(sel), code, np.int8))
-        idx = np.concatenate(idx)
-        shift = np.concatenate(shift)
-        n_ghost = len(idx) - wl.n
-        if self.capacity is None or n_ghost > self.capacity:
-            if self.capacity is not None:
-                self.rebuilds += 1
-                self.engine = self._new_engine()
-            self.capacity = int(n_ghost * 1.25) + 16
-        bits = ((shift[:, None] >> np.arange(3)) & 1).astype(np.float64)
-        centres = pos[idx] + bits * lengths
-        half = np.broadcast_to(self.half[idx], centres.shape)
-        n_park = self.capacity - n_ghost
-        hmax = float(self.half.max()) if len(self.half) else 0.0
-        step = 2.0 * hmax + 1.0
-        park = -(np.arange(1, n_park + 1, dtype=np.float64)[:, None] * step + radius) \
-            * np.ones((1, 3))
-        lower = np.concatenate([centres - half, park - hmax])
-        upper = np.concatenate([centres + half, park + hmax])
-        cand = self._update(lower, upper)
-        n_real = len(idx)
-        cand = cand[(cand[:, 0] < n_real) & (cand[:, 1] < n_real)]
-        a, b = cand[:, 0], cand[:, 1]
-        cand = cand[(shift[a] & shift[b]) == 0]
-        a, b = cand[:, 0], cand[:, 1]
-        delta = centres[b] - centres[a]
-        d = np.sqrt(np.einsum("ij,ij->i", delta, delta))
-        i, j = idx[a], idx[b]
-        if wl.kind == "cutoff":
-            keep = d <= wl.cutoff
+        if wl.kind == "contacts":
+            pairs = self.engine.update(pos, wl.radii, wl.box)
         else:
-            keep = d <= wl.radii[i] + wl.radii[j]
-        return _orient(i[keep], j[keep])
+            pairs = self.engine.update(pos, wl.box)
+        if frame > 0 and self.engine.stats.get("rebuilt"):
+            self.rebuilds += 1
+        return pairs
+
+
+class GranularSAPVerlet(GranularSAPSteady):
+    """``granularsap-steady`` with a Verlet list: rebuild margin 0.1 x the range."""
+
+    name = "granularsap-verlet"
+    description = "NeighborSearch / ContactSearch with rebuild_margin = 0.1 x range"
+    margin_fraction = 0.1
+
+    def unsupported(self, workload):
+        why = super().unsupported(workload)
+        if why is None and workload.kind == "boxes":
+            return "boxes have no Verlet list (SweepAndPrune keeps its sort state instead)"
+        return why
 
 
 # ------------------------------------------------------------------------ peers
@@ -604,12 +557,12 @@ class LammpsPeer(CutoffPeer):
 
 #: every peer the bench command knows, in report order
 PEERS = {cls.name: cls for cls in (
-    GranularSAP, GranularSAPSteady, MDANSGrid, MDAPKDTree, ScipyCKDTree, ASEPeer,
+    GranularSAP, GranularSAPSteady, GranularSAPVerlet, MDANSGrid, MDAPKDTree, ScipyCKDTree, ASEPeer,
     MatscipyPeer, VesinPeer, VesinVerlet, FreudAABB, FreudLinkCell, LammpsPeer,
 )}
 
 #: names of the granularsap adapters (the reference of the ratios)
-GRANULARSAP = ("granularsap", "granularsap-steady")
+GRANULARSAP = ("granularsap", "granularsap-steady", "granularsap-verlet")
 
 
 def make_peers(names=None):
