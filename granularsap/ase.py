@@ -11,10 +11,19 @@ Same quantities (``'i'``, ``'j'``, ``'d'``, ``'D'``, ``'S'`` in any order and
 combination), cutoff forms (a float; one radius per atom, pairs within
 ``r_i + r_j``; a dict ``{(el1, el2): cutoff}`` keyed by symbols or atomic
 numbers), periodicity per axis from ``atoms.pbc`` and the full list in both
-directions, sorted by ``i``.  Cutoffs are strict (``d < cutoff``), as in ASE.
+directions.  Rows are sorted by ``i``, then ``j``, then the shift ``S``
+(lexicographically), so the order is deterministic and independent of the
+thread count (ASE sorts by ``i`` only and leaves the order within an atom to
+its binning).  Cutoffs are strict (``d < cutoff``), as in ASE.
 Cutoffs larger than the cell are handled like ASE: every periodic image within
 range is returned with its shift ``S``, so ``D = positions[j] - positions[i] +
 S @ cell``; atoms outside the cell need not be wrapped.
+
+Stricter than ASE: a per-atom cutoff list must have exactly one entry per
+atom (ASE silently ignores extra entries, for example two cutoffs for a
+one-atom crystal in its own ``NewPrimitiveNeighborList`` example), and
+unknown quantities, negative cutoffs and degenerate periodic cells raise a
+``ValueError`` naming the argument.  See docs/dropins.md.
 
 ASE is needed only to build the ``Atoms`` object (and to map element symbols
 in dict cutoffs to atomic numbers).
@@ -96,7 +105,8 @@ def primitive_neighbor_list(quantities, pbc, cell, positions, cutoff, numbers=No
 
     Returns
     -------
-    One array per quantity (a single array if one quantity was asked for).
+    One array per quantity (a single array if one quantity was asked for),
+    rows sorted by ``i``, then ``j``, then ``S``.
     """
     _check_quantities(quantities)
     pbc = periodic.as_pbc(pbc)
@@ -160,7 +170,8 @@ def primitive_neighbor_list(quantities, pbc, cell, positions, cutoff, numbers=No
         S = np.concatenate([S, np.zeros((n, 3), np.int64)])
         D = np.concatenate([D, np.zeros((n, 3))])
         d = np.concatenate([d, np.zeros(n)])
-    order = np.argsort(i, kind="stable")
+    # deterministic rows: by i, then j, then the shift S (lexicographically)
+    order = np.lexsort((S[:, 2], S[:, 1], S[:, 0], j, i))
     values = {"i": i[order], "j": j[order], "S": S[order], "D": D[order], "d": d[order]}
     out = [np.ascontiguousarray(values[q]) for q in quantities]
     return out[0] if len(out) == 1 else tuple(out)
@@ -190,6 +201,7 @@ def neighbor_list(quantities, a, cutoff, self_interaction=False, max_nbins=1e6, 
     Returns
     -------
     One array per requested quantity, in order; a single array if one quantity.
+    Rows are sorted by ``i``, then ``j``, then the shift ``S``.
 
     Raises
     ------

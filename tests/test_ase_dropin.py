@@ -171,3 +171,49 @@ class TestErrors:
 def test_matches_ase_property(seed, n, cutoff, pbc, cell):
     atoms = _atoms(seed, n, CELLS[cell], pbc)
     _assert_same(neighbor_list("ijSdD", atoms, cutoff), ase_neighbor_list("ijSdD", atoms, cutoff))
+
+
+class TestRowOrder:
+    """Rows sorted by i, then j, then S (ASE's ``NeighborList.get_neighbors``
+    compares its two primitives element by element, issue 12 item 13)."""
+
+    @pytest.mark.parametrize("cell", list(CELLS))
+    @pytest.mark.parametrize("pbc", PBCS[:3], ids=["TTT", "TFT", "FFT"])
+    @pytest.mark.parametrize("n_threads", [1, 2])
+    def test_sorted_by_i_j_shift(self, cell, pbc, n_threads):
+        atoms = _atoms(7, 40, CELLS[cell], pbc)
+        i, j, S, d = neighbor_list("ijSd", atoms, 9.0, n_threads=n_threads)
+        key = np.stack([i, j, S[:, 0], S[:, 1], S[:, 2]], axis=1)
+        order = np.lexsort(key.T[::-1])
+        assert np.array_equal(order, np.arange(len(i)))
+        # and the same rows as ASE's
+        _assert_same((i, j, S, d, neighbor_list("D", atoms, 9.0)),
+                     ase_neighbor_list("ijSdD", atoms, 9.0))
+
+    def test_order_does_not_depend_on_threads(self):
+        atoms = _atoms(8, 60, CELLS["triclinic"], (True, True, True))
+        one = neighbor_list("ijSdD", atoms, 5.0, n_threads=1)
+        two = neighbor_list("ijSdD", atoms, 5.0, n_threads=2)
+        for a, b in zip(one, two, strict=True):
+            assert np.array_equal(a, b)
+
+    def test_small_cell_and_large_cutoff_neighbors_in_order(self):
+        # ASE's test_small_cell_and_large_cutoff: our rows for atom 0 equal
+        # ASE's own PrimitiveNeighborList (bothways), element by element
+        from ase.neighborlist import NeighborList
+
+        atoms = bulk("Cu", "fcc", a=3.6) * (2, 2, 2)
+        atoms.set_pbc(False)
+        i, j = neighbor_list("ij", atoms, 100.0)
+        assert np.array_equal(j[i == 0], np.arange(1, 8))
+        nl = NeighborList([50.0] * len(atoms), skin=0.0, self_interaction=False,
+                          bothways=True)
+        nl.update(atoms)
+        assert np.array_equal(nl.get_neighbors(0)[0], j[i == 0])
+
+    def test_one_cutoff_per_atom_is_required(self):
+        # stricter than ASE, which ignores surplus per-atom cutoffs
+        atoms = bulk("Cu", "fcc", a=3.6)
+        with pytest.raises(ValueError, match=r"cutoff must be a scalar or have shape \(1,\), "
+                                             r"got \(2,\)"):
+            primitive_neighbor_list("ij", atoms.pbc, atoms.cell, atoms.positions, [2.3, 1.7])
