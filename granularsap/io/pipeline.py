@@ -144,44 +144,88 @@ def _sort_rows(pairs, *extra):
     return (pairs[order], *(None if e is None else e[order] for e in extra))
 
 
-def frame_contacts(frame: Frame, params: ContactParams) -> FrameResult:
+class FrameSearch:
+    """The stateful search one run keeps across its frames.
+
+    A :class:`granularsap.NeighborSearch` (``--cutoff``) or
+    :class:`granularsap.ContactSearch` (radii, clumps) made once from the
+    run's parameters, so consecutive frames reuse its buffers and its column
+    order; the answer of every frame is the one-shot answer exactly.
+    """
+
+    def __init__(self, params: ContactParams):
+        import granularsap
+
+        quantities = "Pd" if params.distances else "P"
+        if params.cutoff is not None:
+            self.search = granularsap.NeighborSearch(params.cutoff, quantities=quantities,
+                                                     n_threads=params.n_threads)
+        else:
+            self.search = granularsap.ContactSearch(skin=params.skin, quantities=quantities,
+                                                    n_threads=params.n_threads)
+        self.params = params
+
+    def __call__(self, frame: Frame):
+        """``(pairs (k, 2) of row indices, distances or None, clump label pairs or None)``."""
+        params = self.params
+        pos = frame.positions
+        if params.cutoff is not None:
+            out = self.search.update(pos, engine_cell(frame, params.cutoff))
+        else:
+            radii = frame.radius if frame.radius is not None else _radii(frame, params)
+            reach = 2.0 * float(radii.max()) + params.skin if len(radii) else 0.0
+            box = engine_cell(frame, reach)
+            labels = frame.molecule if params.clumps else None
+            out = self.search.update(pos, radii, box, clump_ids=labels)
+        pairs, distances = out if params.distances else (out, None)
+        clump_pairs = None
+        if params.clumps:
+            mol = np.asarray(frame.molecule, dtype=np.int64)
+            clump_pairs = np.sort(np.stack([mol[pairs[:, 0]], mol[pairs[:, 1]]], axis=1), axis=1)
+            clump_pairs = (np.unique(clump_pairs, axis=0) if len(clump_pairs)
+                           else np.empty((0, 2), np.int64))
+        return pairs, distances, clump_pairs
+
+
+#: one FrameSearch per parameter set in a worker process, kept for its next frames
+_WORKER_SEARCHES: dict = {}
+
+
+def _worker_search(params: ContactParams) -> FrameSearch:
+    key = repr(sorted(params.describe().items())) + repr(params.n_threads)
+    search = _WORKER_SEARCHES.get(key)
+    if search is None:
+        _WORKER_SEARCHES.clear()
+        search = _WORKER_SEARCHES[key] = FrameSearch(params)
+    return search
+
+
+def worker_frame_contacts(frame: Frame, params: ContactParams) -> FrameResult:
+    """:func:`frame_contacts` with the worker process's kept search (a Dask task)."""
+    return frame_contacts(frame, params, _worker_search(params))
+
+
+def frame_contacts(frame: Frame, params: ContactParams, search: FrameSearch | None = None
+                   ) -> FrameResult:
     """Contacts of one frame as particle-id pairs (rows sorted).
 
     Parameters
     ----------
     frame : Frame
     params : ContactParams
+    search : FrameSearch, optional
+        The run's search, kept across frames (a fresh one if None).
 
     Returns
     -------
     FrameResult
     """
-    import granularsap
-
     t0 = time.perf_counter()
-    pos = frame.positions
-    distances = clump_pairs = None
-    if params.cutoff is not None:
-        box = engine_cell(frame, params.cutoff)
-        out = granularsap.neighbor_pairs(pos, params.cutoff, box=box, n_threads=params.n_threads,
-                                         return_distances=params.distances)
-    else:
-        radii = frame.radius if frame.radius is not None else _radii(frame, params)
-        reach = 2.0 * float(radii.max()) + params.skin if len(radii) else 0.0
-        box = engine_cell(frame, reach)
-        if params.clumps:
-            out, clump_pairs = granularsap.clump_contacts(pos, radii, frame.molecule,
-                                                          skin=params.skin, box=box,
-                                                          n_threads=params.n_threads)
-        else:
-            out = granularsap.sphere_contacts(pos, radii, skin=params.skin, box=box,
-                                              n_threads=params.n_threads,
-                                              return_distances=params.distances)
-    if params.distances:
-        pairs, distances = out
-        distances = np.asarray(distances, dtype=np.float64)
-    else:
-        pairs = out
+    if search is None:
+        search = FrameSearch(params)
+    pairs, distances, clump_pairs = search(frame)
+    if distances is not None:
+        distances = np.array(distances, dtype=np.float64)
     pairs = frame.ids[np.asarray(pairs, dtype=np.int64).reshape(-1, 2)]
     pairs = np.sort(pairs, axis=1)  # ids ascending within a row
     pairs, distances = _sort_rows(pairs, distances)
@@ -253,7 +297,7 @@ def dump_frame_contacts(path, offset, line, index, params: ContactParams) -> Fra
     (frame,) = iter_lammps_dump(path, frames=slice(0, 1), start_at=(offset, line, index))
     frame = lean_frame(frame, params)
     read = time.perf_counter() - t0
-    res = frame_contacts(frame, params)
+    res = frame_contacts(frame, params, _worker_search(params))
     res.read_seconds = read
     return res
 
@@ -278,7 +322,7 @@ class _DaskRunner:
         pending = collections.deque()
         for frame in frames:
             data = self.client.scatter(frame)
-            pending.append(self.client.submit(frame_contacts, data, params, pure=False))
+            pending.append(self.client.submit(worker_frame_contacts, data, params, pure=False))
             if len(pending) >= self.window:
                 yield pending.popleft().result()
         while pending:
@@ -396,7 +440,8 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
                 yield frame
 
         if workers is None and scheduler is None:
-            results = (frame_contacts(fr, params) for fr in _prefetch(timed_frames()))
+            search = FrameSearch(params)
+            results = (frame_contacts(fr, params, search) for fr in _prefetch(timed_frames()))
         elif backend == "lammps-dump" and scheduler is None:
             # local workers see the file: each reads its own frames from their byte offsets
             from .lammps_dump import dump_frame_index
