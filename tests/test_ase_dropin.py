@@ -217,3 +217,55 @@ class TestRowOrder:
         with pytest.raises(ValueError, match=r"cutoff must be a scalar or have shape \(1,\), "
                                              r"got \(2,\)"):
             primitive_neighbor_list("ij", atoms.pbc, atoms.cell, atoms.positions, [2.3, 1.7])
+
+
+class TestCutoffManyTimesTheCell:
+    """Every image of every pair, in memory proportional to the output (the
+    ghost-image search needed 14 GB for one atom and cutoff 40)."""
+
+    @pytest.mark.parametrize("atoms, cutoff", [
+        (bulk("Cu", "fcc", a=3.6), 14.0),
+        (bulk("Cu", "fcc", a=3.6) * (2, 2, 1), 12.0),
+        (Atoms("H5", positions=np.random.default_rng(0).uniform(-2, 6, (5, 3)),
+               cell=[[3, 0, 0], [1, 3.5, 0], [-0.5, 0.7, 2.8]], pbc=[True, False, True]), 11.0),
+        (Atoms("HO", positions=[[0, 0, 0], [0.4, 0.3, 5.0]], cell=[2.0, 2.5, 0.0],
+               pbc=[True, True, False]), 9.0),
+    ], ids=["fcc1", "fcc4", "tric-TFT", "slab-zero-vector"])
+    def test_matches_ase(self, atoms, cutoff):
+        _assert_same(neighbor_list("ijSdD", atoms, cutoff),
+                     ase_neighbor_list("ijSdD", atoms, cutoff))
+
+    def test_per_atom_and_dict_cutoffs(self):
+        atoms = bulk("NaCl", "rocksalt", a=5.6)
+        radii = [4.0, 6.5]
+        _assert_same(neighbor_list("ijSdD", atoms, radii),
+                     ase_neighbor_list("ijSdD", atoms, radii))
+        cut = {("Na", "Na"): 9.0, ("Na", "Cl"): 12.0, ("Cl", "Cl"): 3.0}
+        _assert_same(neighbor_list("ijSdD", atoms, cut), ase_neighbor_list("ijSdD", atoms, cut))
+        _assert_same(neighbor_list("ijSdD", atoms, 10.0, self_interaction=True),
+                     ase_neighbor_list("ijSdD", atoms, 10.0, self_interaction=True))
+
+    def test_matches_oracle_and_threads(self):
+        atoms = _atoms(9, 6, CELLS["left_handed"], (True, True, True))
+        got = [neighbor_list("ijSd", atoms, 16.0, n_threads=t) for t in (1, 2)]
+        for a, b in zip(*got, strict=True):
+            assert np.array_equal(a, b)
+        wi, wj, wS, wd = brute_full_image_list(atoms.positions, 16.0, CELLS["left_handed"],
+                                               (True, True, True))
+        gi, gj, gS, gd = _canon(*got[0])
+        assert np.array_equal(gi, wi) and np.array_equal(gj, wj) and np.array_equal(gS, wS)
+        np.testing.assert_allclose(gd, wd, rtol=1e-12)
+
+    @pytest.mark.parametrize("cutoff", [20.0, 30.0])
+    def test_memory_is_bounded_by_the_output(self, cutoff):
+        import tracemalloc
+
+        atoms = bulk("Cu", "fcc", a=3.6)
+        neighbor_list("ijdDS", atoms, 5.0 * cutoff / 4)  # compile outside the measurement
+        tracemalloc.start()
+        try:
+            out = neighbor_list("ijdDS", atoms, cutoff)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert peak < 8 * sum(o.nbytes for o in out) + (1 << 20), peak
