@@ -37,6 +37,8 @@ def summarize(path) -> dict:
             "frames": cf.n_frames,
             "steps": cf.step.tolist(),
             "n_particles": n_part.tolist(),
+            "particles_changed": int(np.count_nonzero(np.diff(n_part))),
+            "empty_frames": int(np.count_nonzero(n_part == 0)),
             "n_contacts": n_con.tolist(),
             "coordination": coord.tolist(),
             "n_born": cf.n_born.tolist(),
@@ -52,6 +54,19 @@ def _stats(values):
         return "-"
     v = np.asarray(values, dtype=float)
     return f"min {v.min():g}, mean {v.mean():.4g}, max {v.max():g}"
+
+
+def _particles(s):
+    """Particle counts: range, and how often they change (a pour, atoms lost)."""
+    counts = s["n_particles"]
+    text = _stats(counts)
+    if not counts:
+        return text
+    if not s["particles_changed"]:
+        return f"{text}; the same in every frame"
+    return (f"{text}; first {counts[0]}, last {counts[-1]}; count changes at "
+            f"{s['particles_changed']} of {len(counts) - 1} transitions, "
+            f"{s['empty_frames']} frames empty")
 
 
 def plot(summary, png):
@@ -104,7 +119,7 @@ def run(args) -> int:
             f"frames {p.get('frames') or ':'}",
             f"contacts:      {crit}",
             f"frames:        {nf}",
-            f"particles:     {_stats(s['n_particles'])}",
+            f"particles:     {_particles(s)}",
             f"contacts/frame: {_stats(s['n_contacts'])}",
             f"coordination:  {_stats(s['coordination'])}",
             f"births/deaths: {births} born, {deaths} died over {max(nf - 1, 0)} transitions "

@@ -110,6 +110,8 @@ def _lammps_cell(bounds, tilt, general):
 
 def _parse_atoms(lines, ncol, path, frame, first_line):
     """Parse atom rows into an (n, ncol) float array and a list of string columns."""
+    if not lines:  # a frame with no atoms (a pour before its first insertion, all lost)
+        return np.empty((0, ncol), dtype=np.float64), None
     try:
         data = np.loadtxt(lines, dtype=np.float64, ndmin=2, comments=None)
     except ValueError:
@@ -330,7 +332,7 @@ def _build_frame(path, index, names, rows, header, coordinates, first_row, frame
     columns = {}
     for k, name in enumerate(names):
         if data is not None:
-            col = data[:, k]
+            col = data[:, k] if name != "element" or len(data) else np.empty(0, dtype=str)
         else:
             col = strings[:, k]
             if name not in ("element",):

@@ -134,7 +134,7 @@ def _iter_mdanalysis(path, sub, frames, topology, kwargs):
     molecule = None
     if hasattr(atoms, "molnums"):
         molecule = np.asarray(atoms.molnums, dtype=np.int64)
-    for ts in u.trajectory[frames]:
+    for ts in _mda_timesteps(u, frames, path):
         dims = ts.dimensions
         cell = None
         if dims is not None and np.all(np.asarray(dims[:3]) > 0):
@@ -145,6 +145,28 @@ def _iter_mdanalysis(path, sub, frames, topology, kwargs):
                       step=None if step is None else int(step), time=float(ts.time),
                       types=types, radius=radius, molecule=molecule, source=path)
         yield frame.sorted_by_id()
+
+
+def _mda_timesteps(u, frames, path):
+    """``u.trajectory[frames]``, with our message where MDAnalysis meets a count change."""
+    it = iter(u.trajectory[frames])
+    last = None
+    while True:
+        try:
+            ts = next(it)
+        except StopIteration:
+            return
+        except ValueError as exc:
+            if "atoms" not in str(exc).lower() or "changed" not in str(exc).lower():
+                raise
+            after = "before its first frame" if last is None else f"after frame {last}"
+            raise ValueError(
+                f"{path}: MDAnalysis cannot read a trajectory whose atom count changes "
+                f"(it stopped {after}: {exc}); read a LAMMPS dump with "
+                "format='lammps-dump' (the default for LAMMPS dumps), which yields "
+                "frames of any size, 0 included") from None
+        last = int(ts.frame)
+        yield ts
 
 
 def _iter_ase(path, sub, frames, kwargs):
