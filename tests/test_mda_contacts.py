@@ -110,3 +110,88 @@ class TestValidation:
             Contacts(ag, radii="vdw")
         with pytest.raises(TypeError, match="atomgroup must be an MDAnalysis AtomGroup"):
             Contacts(np.zeros((3, 3)), cutoff=1.0)
+
+
+def brute_pairs(pos, reach, box):
+    """Pairs i < j with minimum-image distance <= reach (orthorhombic box), by brute force."""
+    d = pos[None, :, :] - pos[:, None, :]
+    if box is not None:
+        d -= box[:3] * np.round(d / box[:3])
+    dist = np.sqrt((d * d).sum(axis=-1))
+    i, j = np.nonzero(np.triu(dist <= reach, k=1))
+    return np.column_stack([i, j]).astype(np.int64).reshape(-1, 2)
+
+
+@pytest.fixture(scope="module")
+def slab():
+    rng = np.random.default_rng(8)
+    n, frames = 200, 6
+    coords = rng.uniform(0, 10, (frames, n, 3)).astype(np.float32)
+    coords[0, :, 2] += 20.0  # frame 0: nobody in the slab z < 5
+    coords[3, :, 2] += 20.0  # frame 3: nobody either
+    dims = np.tile(np.array([10, 10, 40, 90, 90, 90], np.float32), (frames, 1))
+    u = mda.Universe.empty(n, trajectory=False)
+    u.add_TopologyAttr("radii", rng.uniform(0.3, 0.6, n))
+    u.load_new(coords, format=MemoryReader, dimensions=dims, dt=1.0)
+    return u
+
+
+class TestChangingSize:
+    """An UpdatingAtomGroup changes size, to and from 0; MDAnalysis files cannot."""
+
+    def expected(self, u, reach_of):
+        out = []
+        for ts in u.trajectory:
+            sel = np.nonzero(u.atoms.positions[:, 2] < 5.0)[0]
+            pos = u.atoms.positions[sel].astype(np.float64)
+            reach = reach_of(u.atoms.radii[sel])
+            out.append((len(sel), brute_pairs(pos, reach, ts.dimensions.astype(np.float64))))
+        return out
+
+    @pytest.mark.parametrize("kind", ["cutoff", "topology", "scalar"])
+    def test_updating_atomgroup_equals_brute_force(self, slab, kind):
+        ag = slab.select_atoms("prop z < 5.0", updating=True)
+        if kind == "cutoff":
+            c, reach = Contacts(ag, cutoff=1.2), (lambda r: 1.2)
+        elif kind == "topology":
+            c, reach = Contacts(ag, radii="topology", skin=0.05), \
+                (lambda r: r[:, None] + r[None] + 0.05)
+        else:
+            c, reach = Contacts(ag, radii=0.5), (lambda r: 1.0)
+        c.run()
+        want = self.expected(slab, reach)
+        np.testing.assert_array_equal(c.results.n_atoms, [n for n, _ in want])
+        assert c.results.n_atoms[0] == c.results.n_atoms[3] == 0 and c.results.n_atoms.max() > 50
+        for got, (_, pairs) in zip(c.results.pairs, want, strict=True):
+            assert got.shape[1:] == (2,) and got.dtype == np.int64
+            np.testing.assert_array_equal(got, sorted_pairs(pairs))
+        z = [2 * len(p) / n if n else 0.0 for n, p in want]
+        np.testing.assert_allclose(c.results.coordination, z)
+
+    def test_updating_atomgroup_with_a_radius_array_is_refused(self, slab):
+        ag = slab.select_atoms("prop z < 5.0", updating=True)
+        c = Contacts(ag, radii=np.full(len(ag), 0.4))
+        with pytest.raises(ValueError, match=r"radii has 0 values but atomgroup has \d+ atoms "
+                                             r"in frame 1 \(an UpdatingAtomGroup"):
+            c.run()
+
+    def test_empty_atomgroup(self, universe):
+        c = Contacts(universe.atoms[[]], radii=0.5).run()
+        assert [len(p) for p in c.results.pairs] == [0] * N_FRAMES
+        assert all(p.shape == (0, 2) for p in c.results.pairs)
+        np.testing.assert_array_equal(c.results.coordination, np.zeros(N_FRAMES))
+
+    def test_lammps_dump_with_changing_counts_names_the_readers_that_can(self, tmp_path):
+        from ._iohelpers import lammps_cell, write_dump
+
+        rng = np.random.default_rng(1)
+        cell = lammps_cell(6, 6, 6)
+        path = tmp_path / "grow.dump"
+        write_dump(path, [{"positions": rng.uniform(0, 6, (n, 3)), "cell": cell}
+                          for n in (5, 8, 3)])
+        with pytest.warns(UserWarning):  # MDAnalysis: guessed masses, no types ...
+            u = mda.Universe(str(path), format="LAMMPSDUMP")
+        c = Contacts(u.atoms, cutoff=1.0)
+        with pytest.raises(ValueError, match=r"grow\.dump: MDAnalysis cannot read a trajectory "
+                                             r"whose atom count changes.*granularsap contacts"):
+            c.run()
