@@ -40,6 +40,11 @@ from ._numba import num_threads
 from ._validate import as_coords, as_scalar, as_vector, check_n_threads
 from .kernels import grid
 
+try:
+    from .cell import Cell as _Cell
+except ImportError:  # pragma: no cover - before the Cell type exists
+    _Cell = None
+
 __all__ = ["ContactSearch", "NeighborSearch"]
 
 _QUANTITIES = "Pijd DS".replace(" ", "")
@@ -70,11 +75,7 @@ def _check_quantities(quantities):
 def _resolve_cell(box, pbc):
     """(cell for distances, full matrix, pbc) of ``box`` and ``pbc``."""
     cell_obj = None
-    try:
-        from .cell import Cell
-    except ImportError:  # pragma: no cover - during the move to Cell
-        Cell = None
-    if Cell is not None and isinstance(box, Cell):
+    if _Cell is not None and isinstance(box, _Cell):
         cell_obj = box
     if cell_obj is not None:
         pbc_arr = cell_obj.pbc.copy() if pbc is None else periodic.as_pbc(pbc)
@@ -135,7 +136,7 @@ class _Search:
         self._ws = np.empty((n, 3))
         self._rs = np.empty(n)
         self._ls = np.empty(n, np.int64)
-        self._m = np.zeros((n, 3), np.int64)
+        self._m = np.zeros(n, np.int64)  # image jumps since the build, packed
         self._ks = np.zeros((n, 3), np.int64)
         self._col = np.empty(n, np.int64)
         self._perm = None
@@ -206,6 +207,7 @@ class _Search:
         if threads is None and n < _PARALLEL_MIN:
             threads = 1
         with num_threads(threads) as threads:
+            self._kern = grid.serial if threads == 1 else grid
             result = self._run(positions, rad, skin, cell, full, pbc_arr, labels, n, rmax,
                                reach_max, minimum, threads, t_start, scale)
         if scale != 1.0:
@@ -247,7 +249,7 @@ class _Search:
         if reason is None and n:
             n_chunks = len(self._chunk_rows) - 1
             disp2 = np.empty(n_chunks)
-            bad = grid.wrap_sorted(positions, self._perm, hinv, cell_k, diag, pbc, self._ts,
+            bad = self._kern.wrap_sorted(positions, self._perm, hinv, cell_k, diag, pbc, self._ts,
                                    full_k, n_chunks, self._t, self._ks, self._ws, self._m,
                                    disp2)
             self._raise_bad(bad, positions, pbc)
@@ -303,7 +305,7 @@ class _Search:
             self._perm = np.empty(0, np.int64)
             times["sort"] = times["build"] = 0.0
             return 0
-        bad = grid.wrap(positions, hinv, cell, diag, pbc, self._t, self._k, self._w)
+        bad = self._kern.wrap(positions, hinv, cell, diag, pbc, self._t, self._k, self._w)
         self._raise_bad(bad, positions, pbc)
         t, w = self._t, self._w
         extent = float(np.abs(w).max()) + reach_max + self._margin
@@ -325,6 +327,9 @@ class _Search:
                     ratio = (self._split * span[c] / delta[c] if delta[c] > 0
                              else math.inf)
                 nb[c] = int(max(1.0, math.floor(min(ratio, float(_MAX_BINS)))))
+        if self._split > 1 and n < 4 * nb[0] * nb[1]:
+            # sparse: columns of one range hold few particles already
+            nb = [max(1, v // self._split) for v in nb]
         while nb[0] * nb[1] > max(1, n) and max(nb) > 1:
             c = 0 if nb[0] >= nb[1] else 1
             nb[c] = max(1, nb[c] // 2)
@@ -356,12 +361,12 @@ class _Search:
         start = np.empty(ncol + 1, np.int64)
         perm = self._perm_buf
         grid.counting_sort(self._col, prev, ncol, start, perm)
-        grid.sort_columns(start, ncol, perm, np.ascontiguousarray(t[:, 2]), fresh)
+        self._kern.sort_columns(start, ncol, perm, np.ascontiguousarray(t[:, 2]), fresh)
         self._perm_buf = prev if not fresh else np.empty(n, np.int64)
         self._perm = perm
         use_label = labels is not None
         lab = labels if use_label else self._ls
-        grid.gather(perm, t, w, rad, lab, self._ts, self._ws, self._rs, self._ls, use_label)
+        self._kern.gather(perm, t, w, rad, lab, self._ts, self._ws, self._rs, self._ls, use_label)
         if "S" in self.quantities:
             np.take(self._k, perm, axis=0, out=self._ks)
         t1 = time.perf_counter()
@@ -393,7 +398,7 @@ class _Search:
                 self._vb = np.empty(size + size // 8, np.int64)
                 self._vs = np.empty(size + size // 8, np.int64)
                 todo[:] = True
-            grid.build(chunk_cols, start, nb0, nb1, pbc, tz, self._ws, self._rs,
+            self._kern.build(chunk_cols, start, nb0, nb1, pbc, tz, self._ws, self._rs,
                        self._ls, use_label, cell, stencil, rmax, reach, inv_w2,
                        not minimum, self._vstart, self._vstop, self._vb, self._vs, reg_start,
                        cap, todo, need, tested)
@@ -416,14 +421,14 @@ class _Search:
         rows = self._chunk_rows
         counts = np.empty(len(rows) - 1, np.int64)
         strict = not self.include_cutoff
-        grid.narrow_count(rows, self._vstart, self._vstop, self._vb, self._vs, self._ws,
+        self._kern.narrow_count(rows, self._vstart, self._vstop, self._vb, self._vs, self._ws,
                           self._m, use_m, self._rs, skin, cell, strict, counts)
         offsets = np.zeros(len(counts), np.int64)
         offsets[1:] = np.cumsum(counts)[:-1]
         total = int(counts.sum())
         self._alloc_output(total)
         q = self.quantities
-        grid.narrow_fill(rows, offsets, counts, self._vstart, self._vstop, self._vb, self._vs,
+        self._kern.narrow_fill(rows, offsets, counts, self._vstart, self._vstop, self._vb, self._vs,
                          self._ws, self._m, use_m, self._rs, skin, cell, strict, self._perm,
                          self._ks_now(use_m), "d" in q, "D" in q, "S" in q, self._out_p,
                          self._out_d, self._out_v, self._out_s)

@@ -50,8 +50,8 @@ build: ``S' = S - m_b + m_a``.
 order of MDAnalysis's triclinic minimum image; negating it term by term
 gives the same squared norm bit for bit, so the distance of a pair does not
 depend on which end found it, and a Verlet frame reproduces a fresh build
-exactly.  A squared norm that overflows is recomputed with every term scaled
-by ``2**-600`` (exact), so pairs of points beyond 1e154 are decided exactly.
+exactly.  (Coordinates whose squares would overflow or underflow are scaled
+by a power of two before they get here: see ``search.py``.)
 
 Cost: O(n) for wrapping, sorting and gathering, O(candidates) for the
 sweep; candidates per pair found are about ``(3 B)^2 2 B / (2 (4/3) pi R^3)``
@@ -64,6 +64,8 @@ region, so no two threads share an output slot.
 from __future__ import annotations
 
 import math
+import types
+from types import SimpleNamespace
 
 import numba
 import numpy as np
@@ -74,8 +76,7 @@ from .._numba import ijit, jit, pjit
 #: meaningfully (the wrapped value keeps no significant bits)
 WRAP_LIMIT = 2.0 ** 52
 _OFF = 512  # bias of one 10-bit shift field
-_SCALE = 2.0 ** -600
-_BIG2 = 1e300
+_ZERO = (_OFF << 20) | (_OFF << 10) | _OFF  # the code of a zero shift
 
 
 @ijit
@@ -93,42 +94,18 @@ def _separation(w, a, b, cell, s0, s1, s2):
     dx = w[b, 0] - w[a, 0]
     dy = w[b, 1] - w[a, 1]
     dz = w[b, 2] - w[a, 2]
-    # a zero shift would add +-0.0: skipping it changes no distance
-    if s0 != 0:
-        dx += s0 * cell[0, 0]
-        dy += s0 * cell[0, 1]
-        dz += s0 * cell[0, 2]
-    if s1 != 0:
-        dx += s1 * cell[1, 0]
-        dy += s1 * cell[1, 1]
-        dz += s1 * cell[1, 2]
-    if s2 != 0:
-        dx += s2 * cell[2, 0]
-        dy += s2 * cell[2, 1]
-        dz += s2 * cell[2, 2]
+    # added unconditionally (no unpredictable branch): a zero shift adds +-0.0,
+    # which changes no distance
+    dx += s0 * cell[0, 0]
+    dy += s0 * cell[0, 1]
+    dz += s0 * cell[0, 2]
+    dx += s1 * cell[1, 0]
+    dy += s1 * cell[1, 1]
+    dz += s1 * cell[1, 2]
+    dx += s2 * cell[2, 0]
+    dy += s2 * cell[2, 1]
+    dz += s2 * cell[2, 2]
     return dx, dy, dz
-
-
-@jit
-def _distance_scaled(w, a, b, cell, s0, s1, s2):
-    """The distance of ``_separation`` with every term scaled by ``2**-600``."""
-    k = _SCALE
-    dx = w[b, 0] * k - w[a, 0] * k
-    dy = w[b, 1] * k - w[a, 1] * k
-    dz = w[b, 2] * k - w[a, 2] * k
-    if s0 != 0:
-        dx += s0 * (cell[0, 0] * k)
-        dy += s0 * (cell[0, 1] * k)
-        dz += s0 * (cell[0, 2] * k)
-    if s1 != 0:
-        dx += s1 * (cell[1, 0] * k)
-        dy += s1 * (cell[1, 1] * k)
-        dz += s1 * (cell[1, 2] * k)
-    if s2 != 0:
-        dx += s2 * (cell[2, 0] * k)
-        dy += s2 * (cell[2, 1] * k)
-        dz += s2 * (cell[2, 2] * k)
-    return math.sqrt(dx * dx + dy * dy + dz * dz) / k
 
 
 @ijit
@@ -226,9 +203,7 @@ def wrap_sorted(x, perm, hinv, cell, diag, pbc, t_build, full, n_chunks, t, k, w
             if pbc[2]:
                 m2 = np.int64(math.floor(f2 + 0.5))
                 f2 -= m2
-            m[p, 0] = m0
-            m[p, 1] = m1
-            m[p, 2] = m2
+            m[p] = _encode(m0, m1, m2) - _ZERO
             dx = f0 * full[0, 0] + f1 * full[1, 0] + f2 * full[2, 0]
             dy = f0 * full[0, 1] + f1 * full[1, 1] + f2 * full[2, 1]
             dz = f0 * full[0, 2] + f1 * full[1, 2] + f2 * full[2, 2]
@@ -508,13 +483,10 @@ def build(chunk_cols, start, nb0, nb1, pbc, tz, ws, rs, ls, use_label, cell, ste
 
 
 @ijit
-def _entry(w, p, q, code, m, use_m, cell):
-    s0, s1, s2 = _decode(code)
-    if use_m:
-        s0 = s0 - m[q, 0] + m[p, 0]
-        s1 = s1 - m[q, 1] + m[p, 1]
-        s2 = s2 - m[q, 2] + m[p, 2]
-    return s0, s1, s2
+def _entry(code, m, p, q):
+    """Shift of a Verlet entry now: ``S - m_q + m_p`` on the packed codes (the
+    biased 10-bit fields never borrow), decoded."""
+    return _decode(code - m[q] + m[p])
 
 
 @pjit
@@ -528,7 +500,7 @@ def narrow_count(chunk_rows, vstart, vstop, vb, vs, ws, m, use_m, rs, skin, cell
         for p in range(chunk_rows[c], chunk_rows[c + 1]):
             for e in range(vstart[p], vstop[p]):
                 q = vb[e]
-                s0, s1, s2 = _entry(ws, p, q, vs[e], m, use_m, cell)
+                s0, s1, s2 = _entry(vs[e], m, p, q)
                 d = _distance(ws, p, q, cell, s0, s1, s2)
                 thr = rs[p] + rs[q] + skin
                 cnt += np.int64((d < thr) | (incl & (d == thr)))
@@ -559,7 +531,7 @@ def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, use_m
             ip = perm[p]
             for e in range(vstart[p], vstop[p]):
                 q = vb[e]
-                s0, s1, s2 = _entry(ws, p, q, vs[e], m, use_m, cell)
+                s0, s1, s2 = _entry(vs[e], m, p, q)
                 d = _distance(ws, p, q, cell, s0, s1, s2)
                 thr = rs[p] + rs[q] + skin
                 ok = (d < thr) | (incl & (d == thr))
@@ -614,3 +586,23 @@ def csr_from_pairs(n, pairs, dist, want_d, offsets, col, cd):
         if want_d:
             cd[o] = dist[t]
         fill[i] = o + 1
+
+
+# ------------------------------------------------------------ serial twins
+
+
+def _twin(kernel):
+    """The serial build of a parallel kernel (``prange`` runs as ``range``): no
+    thread-pool launch per call, for small inputs and ``n_threads=1``.  A
+    renamed copy of the function, so that its compile cache is its own."""
+    f = kernel.py_func
+    g = types.FunctionType(f.__code__, f.__globals__, f.__name__ + "_serial", f.__defaults__,
+                           f.__closure__)
+    g.__qualname__ = f.__qualname__ + "_serial"
+    g.__doc__ = f.__doc__
+    return jit(g)
+
+
+#: the parallel kernels of this module, compiled serially (same names)
+serial = SimpleNamespace(**{name: _twin(globals()[name]) for name in (
+    "wrap", "wrap_sorted", "sort_columns", "gather", "build", "narrow_count", "narrow_fill")})
