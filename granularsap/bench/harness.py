@@ -5,13 +5,22 @@ Protocol for one workload and one peer:
 1. ``setup`` (untimed: stateful peers build their engine here);
 2. one warm-up run on frame 0, untimed (numba compiles, caches fill); its
    pairs are kept for the agreement check;
-3. timed runs: ``repeats`` runs of frame 0 for a single-frame workload, or one
-   run per remaining frame for a trajectory; each measures wall seconds
-   (``time.perf_counter``), process CPU seconds (``time.process_time``, all
-   threads) and the peak resident memory above the RSS at its start (Linux:
-   the kernel's high-water mark ``VmHWM``, reset through
-   ``/proc/self/clear_refs`` before each run; elsewhere not measured);
-4. the median over the timed runs is reported.
+3. the fresh call, for stateful peers only: ``close`` and ``setup`` again
+   (new engine, new memory), then one timed run on frame 0; its pairs must
+   equal the warm-up's;
+4. the steady state: ``repeats`` timed runs of frame 0 for a single-frame
+   workload, or one run per remaining frame for a trajectory (a stateful
+   peer carries its state from the fresh call on).  Each run measures wall
+   seconds (``time.perf_counter``), process CPU seconds
+   (``time.process_time``, all threads) and the peak resident memory above
+   the RSS at its start (Linux: the kernel's high-water mark ``VmHWM``,
+   reset through ``/proc/self/clear_refs`` before each run; elsewhere not
+   measured).  A peer that times itself (:meth:`Peer.last_seconds`, LAMMPS's
+   own timers) reports that figure instead of the wall seconds, and no CPU
+   seconds;
+5. the median over the steady runs is reported (``seconds``), with the
+   fresh call beside it (``fresh_seconds``) and, when the peer's stats have
+   ``candidates_tested`` and ``pairs``, the candidates tested per pair found.
 
 Agreement: every peer's pairs are reduced to a signature (the pair count of
 every frame checked, plus a hash of the sorted pair set where that is cheap).
@@ -47,12 +56,17 @@ class PeerResult:
     description: str = ""
     version: str | None = None
     threads: int | None = None
-    times: list = field(default_factory=list)
+    times: list = field(default_factory=list)  # steady-state runs (the peer's own time if any)
     cpu_times: list = field(default_factory=list)
-    seconds: float | None = None  # median wall seconds per run (per frame)
+    wall_times: list | None = None  # harness wall seconds, for peers that time themselves
+    self_timed: bool = False  # times are the peer's own figures (LAMMPS's timers)
+    seconds: float | None = None  # steady state: median seconds per run (per frame)
     cpu_seconds: float | None = None
+    fresh_seconds: float | None = None  # stateful peers: first call on a new engine
+    fresh_peak_rss_mb: float | None = None
     warmup_seconds: float | None = None
     peak_rss_mb: float | None = None
+    candidates_per_pair: float | None = None  # median candidates tested per pair found
     pairs: int | None = None  # pairs of frame 0
     frame_pairs: list | None = None  # pairs of every frame (trajectories)
     digest: str | None = None
@@ -202,6 +216,31 @@ def _jsonable(obj):
 # ---------------------------------------------------------------------- running
 
 
+def _candidates_per_pair(stats):
+    """``candidates_tested / pairs`` from a peer's stats (top level), or None."""
+    if not isinstance(stats, dict):
+        return None
+    tested, pairs = stats.get("candidates_tested"), stats.get("pairs")
+    if isinstance(tested, (int, float, np.integer)) and isinstance(pairs, (int, np.integer)) \
+            and pairs > 0:
+        return float(tested) / float(pairs)
+    return None
+
+
+def _timed_run(peer, frame):
+    """``(pairs, seconds, wall, cpu or None, peak bytes or None)`` of one run."""
+    with _PeakRSS() as mem:
+        c0 = time.process_time()
+        t0 = time.perf_counter()
+        pairs = peer.run(frame)
+        t1 = time.perf_counter()
+        c1 = time.process_time()
+    own = peer.last_seconds()
+    if own is not None:
+        return pairs, float(own), t1 - t0, None, mem.delta
+    return pairs, t1 - t0, t1 - t0, c1 - c0, mem.delta
+
+
 def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0, tick=None):
     """Run one peer on one workload; return a :class:`PeerResult`.
 
@@ -215,11 +254,13 @@ def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0, tick=
         res.status, res.reason = "skipped", why
         return res
     n_frames = len(workload.frames)
+    notes = []
     try:
         peer.setup(workload, n_threads)
         t0 = time.perf_counter()
         first = peer.run(0)
         res.warmup_seconds = time.perf_counter() - t0
+        res.threads = peer.threads_used(n_threads)
         count, digest = canonical(first, workload.n)
         del first
         res.pairs, res.digest = count, digest
@@ -228,43 +269,60 @@ def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0, tick=
             plan = list(range(1, n_frames))
         else:
             plan = [0] * max(int(repeats), 1)
-        if res.warmup_seconds > max_seconds:
+        too_slow = res.warmup_seconds > max_seconds
+        if too_slow:
             plan = []
-            res.note = f"timed once: the warm-up took longer than {max_seconds:g} s"
-        peaks, phases, spent = [], [], 0.0
+            notes.append(f"timed once: the warm-up took longer than {max_seconds:g} s")
+        if peer.stateful and not too_slow:
+            peer.close()
+            peer.setup(workload, n_threads)
+            pairs, res.fresh_seconds, _, _, peak = _timed_run(peer, 0)
+            if peak is not None:
+                res.fresh_peak_rss_mb = peak / 2**20
+            fresh = canonical(pairs, workload.n)
+            del pairs
+            if fresh != (count, digest):
+                res.digest = f"{digest}/fresh:{fresh[1]}"
+                notes.append(f"the fresh call found {fresh[0]} pairs, the warm-up {count}")
+        peaks, phases, cands, walls, spent = [], [], [], [], 0.0
         last = None
         for step, frame in enumerate(plan):
-            with _PeakRSS() as mem:
-                c0 = time.process_time()
-                t0 = time.perf_counter()
-                pairs = peer.run(frame)
-                t1 = time.perf_counter()
-                c1 = time.process_time()
-            res.times.append(t1 - t0)
-            res.cpu_times.append(c1 - c0)
-            spent += t1 - t0
+            pairs, seconds, wall, cpu, peak = _timed_run(peer, frame)
+            res.times.append(seconds)
+            res.cpu_times.append(cpu)
+            walls.append(wall)
+            spent += wall
             if tick is not None:
                 tick(step + 1, len(plan), spent)
-            if mem.delta is not None:
-                peaks.append(mem.delta)
-            ph = _phase_seconds(peer.last_stats())
+            if peak is not None:
+                peaks.append(peak)
+            stats = peer.last_stats()
+            ph = _phase_seconds(stats)
             if ph:
                 phases.append(ph)
+            cpp = _candidates_per_pair(stats)
+            if cpp is not None:
+                cands.append(cpp)
             if n_frames > 1:
                 frame_pairs.append(len(pairs))
                 last = pairs if frame == n_frames - 1 else None
             del pairs
             if spent > max_seconds and step + 1 < len(plan):
-                res.note = (f"stopped after {step + 1} of {len(plan)} timed runs "
-                            f"(--max-seconds {max_seconds:g})")
+                notes.append(f"stopped after {step + 1} of {len(plan)} timed runs "
+                             f"(--max-seconds {max_seconds:g})")
                 break
+        res.self_timed = peer.last_seconds() is not None
+        if res.self_timed:
+            res.wall_times = walls
         if not res.times:  # timed once: use the warm-up
-            res.times, res.cpu_times = [res.warmup_seconds], [None]
+            own = peer.last_seconds()
+            res.times = [res.warmup_seconds if own is None else float(own)]
+            res.cpu_times = [None]
         if n_frames > 1:
             res.frame_pairs = frame_pairs
             if last is not None:
-                _, res.digest = canonical(last, workload.n)
-                res.digest = f"{digest}/{res.digest}"
+                _, tail = canonical(last, workload.n)
+                res.digest = f"{res.digest}/{tail}"
         res.seconds = statistics.median(res.times)
         cpu = [c for c in res.cpu_times if c is not None]
         res.cpu_seconds = statistics.median(cpu) if cpu else None
@@ -272,10 +330,22 @@ def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0, tick=
         if phases:
             res.phases = {k: statistics.median(p.get(k, 0.0) for p in phases) for k in PHASES}
         stats = peer.last_stats()
+        if not cands and _candidates_per_pair(stats) is not None:
+            cands = [_candidates_per_pair(stats)]
+        res.candidates_per_pair = statistics.median(cands) if cands else None
         res.stats = _jsonable(stats) if stats else None
         res.rebuilds = int(getattr(peer, "rebuilds", 0) or 0)
+        remark = peer.note()
+        if remark:
+            notes.append(remark)
     except Exception as exc:  # a failing peer is reported, not fatal
         res.status, res.reason = "error", f"{type(exc).__name__}: {exc}"
+    finally:
+        try:
+            peer.close()
+        except Exception as exc:  # a peer that cannot clean up is reported, not fatal
+            notes.append(f"close failed: {type(exc).__name__}: {exc}")
+    res.note = "; ".join(notes) or None
     return res
 
 

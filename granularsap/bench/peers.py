@@ -642,13 +642,16 @@ class _LammpsSystem:
     """
 
     def __init__(self, workload, n_threads):
+        import shutil
         import tempfile
+        import weakref
 
         import lammps_bridge
 
         self.wl = workload
-        self.dir = tempfile.TemporaryDirectory(prefix="granularsap-bench-lammps-")
-        self.log = f"{self.dir.name}/log.lammps"
+        folder = tempfile.mkdtemp(prefix="granularsap-bench-lammps-")
+        self._cleanup = weakref.finalize(self, shutil.rmtree, folder, ignore_errors=True)
+        self.log = f"{folder}/log.lammps"
         self.lmp = lammps_bridge.new_lammps(cmdargs=["-log", self.log, "-screen", "none"],
                                             quiet=False)
         self.omp = bool(self.lmp.has_package("OPENMP"))
@@ -771,7 +774,7 @@ class _LammpsSystem:
         if getattr(self, "lmp", None) is not None:
             self.lmp.close()
             self.lmp = None
-        self.dir.cleanup()
+        self._cleanup()
 
 
 class _LammpsSelfTimed(Peer):
@@ -813,7 +816,8 @@ class _LammpsSelfTimed(Peer):
     def note(self):
         if not self.stats:
             return None
-        return f"LAMMPS list: {self.stats['list_entries']} entries"
+        where = f" on frame {self.cache[0]}" if len(self.workload.frames) > 1 else ""
+        return f"LAMMPS list{where}: {self.stats['list_entries']} entries"
 
     def close(self):
         system = getattr(self, "system", None)

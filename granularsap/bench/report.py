@@ -7,6 +7,7 @@ import json
 import os
 import platform
 import sys
+import textwrap
 from importlib.metadata import PackageNotFoundError, version
 
 from .harness import MEMORY_METHOD, PHASES
@@ -75,6 +76,13 @@ def _fmt(x, spec):
     return "-" if x is None else format(x, spec)
 
 
+#: the legend printed under every table
+LEGEND = ("fresh s: first call on a new engine, after the warm-up (stateful peers; '=' for "
+          "stateless peers, whose every call is fresh); steady s: median of the later "
+          "{runs}, state and buffers kept; * timed by the peer itself (LAMMPS's timers); "
+          "cand/pair: candidates tested per pair found")
+
+
 def format_table(wres):
     """The table of one workload as a string (no trailing newline)."""
     head = f"{wres.label}  [{wres.kind}"
@@ -82,26 +90,28 @@ def format_table(wres):
         head += ", periodic" if wres.params.get("periodic", True) else ", open"
     head += "]"
     if wres.n_frames > 1:
-        head += f"  (seconds per frame, median over frames 1..{wres.n_frames - 1})"
-    cols = f"{'peer':<20} {'thr':>3} {'median s':>10} {'cpu s':>10} {'peer/gsap':>10} " \
-           f"{'peak MB':>8} {'pairs':>12}  agrees"
+        head += f"  (seconds per frame, steady: median over frames 1..{wres.n_frames - 1})"
+    cols = f"{'peer':<20} {'thr':>3} {'fresh s':>9} {'steady s':>10} {'cpu s':>9} " \
+           f"{'peer/gsap':>9} {'cand/pair':>9} {'peak MB':>8} {'pairs':>12}  agrees"
     lines = [head, cols, "-" * len(cols)]
     for r in wres.results:
         if r.status != "ok":
             lines.append(f"{r.peer:<20} {r.status}: {r.reason}")
             continue
-        if r.agrees is False:
-            ratio = "DISAGREES"
-        else:
-            ratio = _fmt(r.ratio, ".2f")
+        ratio = "DISAGREES" if r.agrees is False else _fmt(r.ratio, ".2f")
         agrees = {True: "yes", False: "NO", None: "?"}[r.agrees]
-        line = (f"{r.peer:<20} {r.threads:>3} {_fmt(r.seconds, '.4g'):>10} "
-                f"{_fmt(r.cpu_seconds, '.4g'):>10} {ratio:>10} {_fmt(r.peak_rss_mb, '.1f'):>8} "
+        fresh = _fmt(r.fresh_seconds, ".4g") if r.fresh_seconds is not None else "="
+        steady = _fmt(r.seconds, ".4g") + ("*" if r.self_timed else " ")
+        line = (f"{r.peer:<20} {r.threads:>3} {fresh:>9} {steady:>10} "
+                f"{_fmt(r.cpu_seconds, '.4g'):>9} {ratio:>9} "
+                f"{_fmt(r.candidates_per_pair, '.2f'):>9} {_fmt(r.peak_rss_mb, '.1f'):>8} "
                 f"{r.pairs:>12}  {agrees}")
         extras = [x for x in (r.note, f"{r.rebuilds} rebuilds" if r.rebuilds else None) if x]
         if extras:
             line += "  (" + "; ".join(extras) + ")"
         lines.append(line)
+    lines.extend(textwrap.wrap(LEGEND.format(runs="frames" if wres.n_frames > 1 else "repeats"),
+                               width=len(cols)))
     lines.append(summary_line(wres))
     return "\n".join(lines)
 
