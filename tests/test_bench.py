@@ -297,3 +297,212 @@ class TestCommand:
     def test_paper_is_run_on_its_own(self, capsys):
         assert main(["bench", "paper", "md-liquid"]) == 2
         assert "run 'paper' on its own" in capsys.readouterr().err
+
+
+# ------------------------------------------------------- peers our goals are measured against
+
+
+def _lammps_or_skip():
+    why = peers.LammpsRebuild().missing()
+    if why:
+        pytest.skip(f"LAMMPS not available: {why}")
+
+
+def _triclinic_liquid(n=2000):
+    """md-liquid points in a skewed periodic cell (rows of MDAnalysis's cell vectors)."""
+    base = workloads.md_liquid(n, seed=3)
+    length = base.box[0]
+    box = np.array([length, 1.1 * length, 0.95 * length, 80.0, 100.0, 70.0])
+    return workloads.Workload(name="triclinic", label="triclinic", kind="cutoff", n=n,
+                              frames=[1.3 * base.positions - 3.0], cutoff=2.8, box=box)
+
+
+SMOKE = {
+    "md-liquid": lambda: workloads.md_liquid(2000, seed=1),
+    "md-liquid-open": lambda: workloads.md_liquid_open(2000, seed=1),
+    "granular-polydisperse": lambda: workloads.granular_polydisperse(2000, seed=1),
+}
+
+
+def _run_all_frames(peer, wl):
+    """Run ``peer`` over every frame; assert each equals the brute-force pairs."""
+    peer.setup(wl, 2)
+    try:
+        for f in range(len(wl.frames)):
+            got = peer.run(f)
+            assert got.dtype == np.int64 and np.all(got[:, 0] < got[:, 1])
+            assert harness.canonical(got, wl.n) == harness.canonical(brute_pairs(wl, f), wl.n)
+    finally:
+        peer.close()
+
+
+class TestLammpsRebuild:
+    """LAMMPS's own list, rebuilt every step and self-timed, equals the definition."""
+
+    @pytest.mark.parametrize("wl_name", list(SMOKE))
+    def test_agrees_and_times_itself(self, wl_name):
+        _lammps_or_skip()
+        wl = SMOKE[wl_name]()
+        peer = peers.LammpsRebuild()
+        _run_all_frames(peer, wl)
+        stats = peer.last_stats()
+        assert stats["list_entries"] >= stats["pairs"] == len(brute_pairs(wl))
+        assert peer.last_seconds() == pytest.approx(stats["seconds"]["neigh"]
+                                                    + stats["seconds"]["comm"])
+        assert 0 < peer.last_seconds() < stats["seconds"]["run_wall"]
+
+    def test_triclinic(self):
+        _lammps_or_skip()
+        _run_all_frames(peers.LammpsRebuild(), _triclinic_liquid())
+
+    def test_trajectory_frames_are_scattered(self):
+        _lammps_or_skip()
+        _run_all_frames(peers.LammpsRebuild(), workloads.trajectory(2000, n_frames=3, step=0.3))
+
+    def test_uses_the_bench_threads(self):
+        _lammps_or_skip()
+        peer = peers.LammpsRebuild()
+        peer.setup(SMOKE["md-liquid"](), 2)
+        try:
+            assert peer.threads_used(2) == (2 if peer.omp else 1)
+            assert ("OPENMP package" in peer.description) == peer.omp
+        finally:
+            peer.close()
+
+
+class TestLammpsRun0:
+    def test_trajectory(self):
+        _lammps_or_skip()
+        peer = peers.LammpsRun0()
+        wl = workloads.trajectory(2000, n_frames=3, step=0.3)
+        _run_all_frames(peer, wl)
+        assert peer.last_seconds() > 0
+
+    def test_single_frame_is_left_to_lammps_rebuild(self):
+        assert "lammps-rebuild times one frame" in peers.LammpsRun0().unsupported(
+            SMOKE["md-liquid"]())
+
+
+class TestNumbaCellList:
+    @pytest.mark.parametrize("wl_name", list(SMOKE))
+    def test_agrees(self, wl_name):
+        _run_all_frames(peers.NumbaCellList(), SMOKE[wl_name]())
+
+    def test_trajectory_reuses_buffers(self):
+        _run_all_frames(peers.NumbaCellList(), workloads.trajectory(2000, n_frames=3, step=0.3))
+
+    @pytest.mark.parametrize("wl_name", ["md-liquid", "granular-polydisperse"])
+    def test_distances_and_threads(self, wl_name):
+        from granularsap.bench.celllist import CellList
+
+        wl = SMOKE[wl_name]()
+        kw = {"cutoff": wl.cutoff} if wl.kind == "cutoff" else {"radii": wl.radii}
+        one = [a.copy() for a in CellList(n_threads=1).compute(wl.positions, box=wl.box[:3],
+                                                                **kw)]
+        two = CellList(n_threads=2)
+        pairs, dist = two.compute(wl.positions, box=wl.box[:3], **kw)
+        np.testing.assert_array_equal(pairs, one[0])
+        np.testing.assert_array_equal(dist, one[1])
+        np.testing.assert_allclose(dist, peers.pair_distances(wl.positions, pairs, wl.box),
+                                   rtol=1e-12)
+        assert two.stats["pairs"] == len(pairs) <= two.stats["candidates_tested"]
+
+    def test_small_periodic_cell_is_a_clear_error(self):
+        from granularsap.bench.celllist import CellList
+
+        with pytest.raises(ValueError, match="a periodic cell needs at least 3 bins per axis"):
+            CellList().compute(np.zeros((4, 3)), cutoff=2.8, box=[7.0, 7.0, 7.0])
+        assert "at least 3 bins" in peers.NumbaCellList().unsupported(SMALL["md-liquid"]())
+
+
+class TestLammpsLog:
+    LOG = """Loop time of 0.2 on 1 procs for 10 steps with 2000 atoms
+
+Section |  min time  |  avg time  |  max time  |%varavg| %total
+---------------------------------------------------------------
+Pair    | 0.0001     | 0.0001     | 0.0001     |   0.0 |  0.04
+Neigh   | 0.15       | 0.15       | 0.15       |   0.0 | 85.53
+Comm    | 0.01       | 0.01       | 0.01       |   0.0 |  1.87
+Other   |            | 0.04       |            |       |  7.90
+
+Nlocal:         2000 ave        2000 max        2000 min
+"""
+
+    def test_sections(self, tmp_path):
+        path = tmp_path / "log.lammps"
+        path.write_text(self.LOG)
+        assert peers._log_sections(path) == {"Pair": 0.0001, "Neigh": 0.15, "Comm": 0.01,
+                                             "Other": 0.04}
+
+    def test_no_breakdown_is_a_clear_error(self, tmp_path):
+        path = tmp_path / "log.lammps"
+        path.write_text("run 0 post no\n")
+        with pytest.raises(RuntimeError, match="LAMMPS wrote no timer breakdown"):
+            peers._log_sections(path)
+
+
+class _Stateful(Fast):
+    """A stateful peer whose stats carry candidate counts."""
+
+    name = "stateful"
+    stateful = True
+    setups = 0
+
+    def setup(self, workload, n_threads):
+        super().setup(workload, n_threads)
+        self.setups += 1
+
+    def last_stats(self):
+        return {"candidates_tested": 3 * len(self.pairs), "pairs": len(self.pairs)}
+
+
+class _WrongWhenFresh(_Stateful):
+    name = "wrong-when-fresh"
+
+    def run(self, frame):
+        return self.pairs[1:] if self.setups == 2 else self.pairs
+
+
+class _SelfTimed(Fast):
+    name = "self-timed"
+
+    def last_seconds(self):
+        return 123.0
+
+
+class TestFreshAndSteady:
+    def test_stateful_peer_gets_a_fresh_call_on_a_new_setup(self):
+        wl = SMALL["md-liquid"]()
+        peer = _Stateful()
+        res = harness.run_peer(peer, wl, repeats=2)
+        assert peer.setups == 2 and res.fresh_seconds is not None and len(res.times) == 2
+        assert res.candidates_per_pair == pytest.approx(3.0)
+        stateless = harness.run_peer(Fast(), wl, repeats=2)
+        assert stateless.fresh_seconds is None and stateless.candidates_per_pair is None
+
+    def test_fresh_call_that_differs_disagrees(self):
+        wl = SMALL["md-liquid"]()
+        res = [harness.run_peer(p, wl, repeats=1) for p in (Fast(), _fake("peer-a"),
+                                                            _WrongWhenFresh())]
+        wres = harness.judge(harness.WorkloadResult(
+            name=wl.name, label=wl.label, kind=wl.kind, n=wl.n, n_frames=1, params={},
+            results=res))
+        assert wres.disagreements == ["wrong-when-fresh"]
+        assert "the fresh call found" in res[2].note
+
+    def test_self_timed_peer_reports_its_own_time(self):
+        res = harness.run_peer(_SelfTimed(), SMALL["md-liquid"](), repeats=2)
+        assert res.self_timed and res.times == [123.0, 123.0] and res.seconds == 123.0
+        assert res.cpu_seconds is None and len(res.wall_times) == 2
+
+    def test_table_columns(self, capsys):
+        wl = SMALL["md-liquid"]()
+        bench_cli.execute([("md-liquid", 300)], [Fast(), _Stateful(), _SelfTimed()],
+                          build=lambda name, n: wl, repeats=1, n_threads=1, max_seconds=60,
+                          settings={})
+        out = capsys.readouterr().out
+        table = out[out.index("md-liquid N=300  [cutoff"):]
+        assert "fresh s" in table and "steady s" in table and "cand/pair" in table
+        rows = {line.split()[0]: line.split() for line in table.splitlines()[3:6]}
+        assert rows["granularsap"][2] == "=" and rows["stateful"][2] != "="
+        assert rows["stateful"][6] == "3.00" and rows["self-timed"][3] == "123*"
