@@ -2,15 +2,20 @@
 
 Runs the same deterministic inputs through granularsap and every installed
 peer (MDAnalysis nsgrid/pkdtree, scipy cKDTree, ASE, matscipy, vesin, freud
-AABBQuery/LinkCell, LAMMPS), checks that all found the same pairs, and
-prints a table per workload: median seconds over repeated runs after a
-warm-up, peer/granularsap ratio, peak memory, pairs and threads.  --json and
+AABBQuery/LinkCell, LAMMPS's own neighbour list rebuilt every step and timed
+by LAMMPS, LAMMPS ``run 0`` per trajectory frame, a plain numba cell list),
+checks that all found the same pairs, and prints a table per workload: the
+fresh call of stateful peers beside their steady state (median over repeated
+runs or trajectory frames after a warm-up), peer/granularsap ratio,
+candidates tested per pair found, peak memory, pairs and threads.  --json and
 --plot write the full report and PNG plots.  Workload ``paper`` runs the
-engine's own reproduction of the paper's experiments instead.
+engine's own reproduction of the paper's experiments instead.  The reference
+is docs/bench.md.
 
 examples:
   granularsap bench md-liquid granular-polydisperse --quick
   granularsap bench md-liquid --sizes 1e4 1e5 --peers granularsap,vesin,mda-nsgrid
+  granularsap bench md-liquid --sizes 1e5 --peers lammps-rebuild,numba-celllist,vesin
   granularsap bench all --json bench.json --plot bench.png
   granularsap bench paper --quick
 """
