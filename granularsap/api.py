@@ -138,7 +138,7 @@ class SweepAndPrune:
         self._partitions = None  # override of the number of partitions (tests)
         #: Boxes are cubes around spheres: keep pairs whose inscribed spheres
         #: (nearly) touch instead of every overlapping pair (a superset of the
-        #: exact sphere test that follows; see _sphere_candidates).
+        #: exact sphere test that follows).
         self._spheres = False
         self._n = -1
         self._layout = None
@@ -423,19 +423,6 @@ def _box_overlaps_path(lower, upper, *, path=None, n_threads=None, partitions=No
     engine = SweepAndPrune(axes=axes, n_threads=n_threads)
     engine._path = path
     engine._partitions = partitions
-    return engine.update(lower, upper)
-
-
-def _sphere_candidates(lower, upper, *, n_threads=None):
-    """Candidate pairs of spheres inscribed in cubic boxes, for an exact test.
-
-    Every pair of boxes whose inscribed spheres come within a relative 1e-9 of
-    touching, a subset of ``box_overlaps`` (the boxes' corners are skipped)
-    and a superset of the pairs an exact sphere test keeps when each box's
-    half-width carries a rounding guard.  Boxes must be cubes.
-    """
-    engine = SweepAndPrune(n_threads=n_threads)
-    engine._spheres = True
     return engine.update(lower, upper)
 
 

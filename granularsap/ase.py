@@ -43,7 +43,8 @@ import numpy as np
 from . import periodic
 from ._numba import jit, num_threads, pjit
 from ._validate import as_coords, check_n_threads
-from .particles import _as_radii, _search
+from .search import ContactSearch
+from .search import as_radii as _as_radii
 
 __all__ = ["neighbor_list", "primitive_neighbor_list"]
 
@@ -289,8 +290,9 @@ def primitive_neighbor_list(quantities, pbc, cell, positions, cutoff, numbers=No
                                        numbers if table is not None else None, slack,
                                        n_threads)
     else:
-        a, b, shift, _, _ = _search(positions, rad, slack, cellm, pbc, n_threads=n_threads,
-                                    minimum_image=False, pos_for_distance="original")
+        search = ContactSearch(skin=slack, periodic_images="all", quantities="ijS",
+                               n_threads=n_threads)
+        a, b, shift = search.update(positions, rad, cellm, pbc=pbc)
     D = positions[b] - positions[a] + shift.dot(cell_arr)
     d = np.sqrt(np.sum(D * D, axis=1))
     if table is not None:

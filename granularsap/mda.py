@@ -45,7 +45,7 @@ import numpy as np
 
 from . import _mda_arith, periodic
 from ._validate import as_coords, as_scalar
-from .particles import _search
+from .search import ContactSearch, NeighborSearch
 
 __all__ = ["Contacts", "capped_distance", "self_capped_distance"]  # noqa: F822 (lazy)
 
@@ -59,7 +59,6 @@ def __getattr__(name):
         return Contacts
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
-_PBC = np.ones(3, dtype=bool)
 
 
 _METHODS = ("bruteforce", "pkdtree", "nsgrid")
@@ -266,9 +265,8 @@ def self_capped_distance(reference, max_cutoff, min_cutoff=None, box=None, metho
     if beyond:
         a, b, dist = _brute(pos, None, cell, reach, max_cutoff, emulate, n_threads)
     else:
-        rad = np.full(len(pos), 0.5 * reach)
-        a, b, _, dist, _ = _search(pos, rad, 0.0, cell, _PBC, n_threads=n_threads,
-                                   minimum_image="reduce", what="max_cutoff")
+        pairs, dist = NeighborSearch(reach, n_threads=n_threads).update(pos, cell)
+        a, b = pairs[:, 0], pairs[:, 1]
     if emulate is not None:
         a, b, dist = _decide_like_mdanalysis(pos, None, a, b, dist, emulate[0], max_cutoff,
                                              method, beyond)
@@ -340,16 +338,12 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
     if beyond:
         a, b, dist = _brute(ref, conf, cell, reach, max_cutoff, emulate, n_threads)
     else:
+        # one search over both sets, labelled so that only cross pairs come out
         pos = np.concatenate([ref, conf])
-        rad = np.zeros(len(pos))
-        if n <= len(conf):
-            rad[:n] = reach
-        else:
-            rad[n:] = reach
-        a, b, _, dist, _ = _search(pos, rad, 0.0, cell, _PBC, n_threads=n_threads,
-                                   minimum_image="reduce", what="max_cutoff", split=n,
-                                   reach_max=reach)
-        b = b - n
+        labels = (np.arange(len(pos)) >= n).astype(np.int64)
+        pairs, dist = ContactSearch(quantities="Pd", n_threads=n_threads).update(
+            pos, np.full(len(pos), 0.5 * reach), cell, clump_ids=labels)
+        a, b = pairs[:, 0], pairs[:, 1] - n
     if emulate is not None:
         a, b, dist = _decide_like_mdanalysis(ref, conf, a, b, dist, emulate[0], max_cutoff,
                                              method, beyond)

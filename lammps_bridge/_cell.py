@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from granularsap._validate import as_coords
+from granularsap.inputs import as_coords
 
 
 def cell_from_box(box):

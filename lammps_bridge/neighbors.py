@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from granularsap._validate import as_coords, as_scalar, as_vector
+from granularsap.inputs import as_coords, as_scalar, as_vector
 
 from ._cell import as_pbc, cell_from_box, lammps_frame
 from ._loader import new_lammps

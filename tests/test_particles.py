@@ -159,16 +159,16 @@ class TestSphereContacts:
         assert _sorted(sphere_contacts(pos, [0.5, 0.25, 0.5]))[0].tolist() == [[0, 1], [1, 2]]
 
     @pytest.mark.parametrize("box", ["none", "triclinic"])
-    def test_parallel_narrow_phase_path(self, box, monkeypatch):
-        # force the chunked parallel kernels on a small input and compare with the
-        # serial kernels and the oracle
-        from granularsap.kernels import narrow
+    def test_parallel_kernels_on_a_small_input(self, box, monkeypatch):
+        # an explicit thread count runs the parallel kernels however small the
+        # input; one thread runs their serial builds: both equal the oracle
+        import granularsap.search
 
+        monkeypatch.setattr(granularsap.search, "_CHUNK", 16)  # many chunks
         pos = _points(11, 90)
         radii = np.random.default_rng(11).uniform(0.1, 1.2, 90)
-        serial = _sorted(*sphere_contacts(pos, radii, box=BOXES[box], n_threads=2,
+        serial = _sorted(*sphere_contacts(pos, radii, box=BOXES[box], n_threads=1,
                                           return_distances=True))
-        monkeypatch.setattr(narrow, "PARALLEL_MIN", 0)
         par = _sorted(*sphere_contacts(pos, radii, box=BOXES[box], n_threads=2,
                                        return_distances=True))
         assert np.array_equal(serial[0], par[0]) and np.array_equal(serial[1], par[1])
