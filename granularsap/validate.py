@@ -305,8 +305,9 @@ def run(args) -> int:
         sys.stdout.flush()
         total["frames"] += 1
     if setup is None:
-        print(f"granularsap validate: {args.trajectory}: no frames")
-        return 2
+        from .cli import CLIError
+
+        raise CLIError(f"--frames selects no frame of {args.trajectory}")
     for line in details:
         print(line)
     verdict = ("identical" if total["diff"] == 0 and total["ties"] == 0 else

@@ -16,7 +16,7 @@ from .hdf5 import (
 )
 from .lammps_dump import DumpFormatError, iter_lammps_dump
 from .pipeline import ContactParams, compute_contacts, frame_contacts
-from .readers import count_frames, iter_frames
+from .readers import TrajectoryError, count_frames, iter_frames
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -26,6 +26,7 @@ __all__ = [
     "DumpFormatError",
     "Frame",
     "IncompleteFileError",
+    "TrajectoryError",
     "box_to_cell",
     "cell_to_box",
     "compute_contacts",

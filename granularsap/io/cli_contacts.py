@@ -98,7 +98,7 @@ def add_arguments(parser):
 
 def run(args) -> int:
     from ..cli import CLIError
-    from .pipeline import ContactParams, compute_contacts
+    from .pipeline import ContactParams, check_output, compute_contacts
 
     threads = args.threads
     if threads is None and args.workers is not None:
@@ -115,8 +115,10 @@ def run(args) -> int:
 
     if not os.path.exists(args.trajectory):
         raise CLIError(f"trajectory {args.trajectory} does not exist")
-    if os.path.exists(args.output) and not args.force:
-        raise CLIError(f"{args.output} already exists; use --force to overwrite it")
+    try:
+        check_output(args.output, overwrite=args.force)
+    except FileExistsError:
+        raise CLIError(f"{args.output} already exists; use --force to overwrite it") from None
 
     def on_resume(done, reason):
         if args.quiet:

@@ -366,6 +366,8 @@ class ContactsWriter:
         self.commit()
         paths = [os.path.join(self.tmp, name) for name, _ in self._segments]
         tmp = self.path + ".tmp"
+        if os.path.isfile(tmp):  # left by a run killed while assembling: never trusted
+            os.remove(tmp)
         with self.h5py.File(tmp, "w") as f:
             _write_header(f, self.info, self.n_frames, complete=False)
             _assemble(self.h5py, paths, f,
@@ -482,11 +484,19 @@ class ContactsFile:
             path = partial_path(path)
         self.path = path
         if os.path.isdir(path):  # an interrupted run: its committed segments
+            if not os.path.exists(os.path.join(path, "run.json")):
+                raise ValueError(f"{path} is a directory, not a granularsap contacts file "
+                                 "(nor the .partial directory of an interrupted run)")
             if not allow_incomplete:
                 raise IncompleteFileError(f"{path} is an interrupted run: rerun the same "
                                           "command to resume it")
             self.file = _assemble_in_memory(path, h5)
         else:
+            if not h5.is_hdf5(path):
+                size = os.path.getsize(path)
+                raise ValueError(f"{path} is not a granularsap contacts file: not an HDF5 file "
+                                 f"({'empty' if size == 0 else f'{size} bytes'}); contacts "
+                                 "files are written by `granularsap contacts`")
             self.file = h5.File(path, "r")
         attrs = self.file.attrs
         if attrs.get("format") != FORMAT_NAME:

@@ -241,12 +241,17 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
                                       msg)
 
             # ---- header items up to ITEM: ATOMS
+            first_line = index == 0 and start_at is None
             while True:
                 if line is None:
                     fail("file ends inside the frame header (truncated)")
                 text = line.strip()
                 if not text.startswith("ITEM:"):
+                    if first_line:
+                        fail(f"not a LAMMPS text dump: expected 'ITEM: TIMESTEP' on its first "
+                             f"line, got {text[:40]!r}")
                     fail(f"expected an 'ITEM:' line, got {text[:40]!r}")
+                first_line = False
                 item = text[5:].strip()
                 if item.startswith("TIMESTEP"):
                     val = src.next()

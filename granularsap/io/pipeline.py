@@ -19,9 +19,9 @@ import numpy as np
 
 from ._frame import Frame
 from .hdf5 import ContactsWriter, FrameResult, partial_path
-from .readers import count_frames, iter_frames, resolve_format
+from .readers import TrajectoryError, count_frames, describe_format, iter_frames, resolve_format
 
-__all__ = ["ContactParams", "compute_contacts", "engine_cell", "frame_contacts"]
+__all__ = ["ContactParams", "check_output", "compute_contacts", "engine_cell", "frame_contacts"]
 
 
 @dataclass(frozen=True)
@@ -345,6 +345,46 @@ class _DaskRunner:
             self.cluster.close()
 
 
+def check_output(output, *, overwrite=False):
+    """Refuse an output path that cannot be written, before any frame is computed.
+
+    Raises
+    ------
+    IsADirectoryError
+        ``output`` (or its ``.tmp`` twin) is a directory.
+    FileExistsError
+        ``output`` exists and ``overwrite`` is False.
+    FileNotFoundError, PermissionError
+        The directory that would hold ``output`` is missing or not writable.
+    """
+    output = os.fspath(output)
+    if os.path.isdir(output):
+        raise IsADirectoryError(f"output {output} is a directory; give a file name, e.g. "
+                                f"{os.path.join(output, 'contacts.h5')}")
+    if os.path.isdir(output + ".tmp"):
+        raise IsADirectoryError(f"{output}.tmp is a directory; the contacts file is assembled "
+                                "under that name: remove or rename it")
+    if os.path.exists(output) and not overwrite:
+        raise FileExistsError(f"{output} already exists; remove it or pass overwrite")
+    parent = os.path.dirname(os.path.abspath(output))
+    if not os.path.isdir(parent):
+        raise FileNotFoundError(f"output directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise PermissionError(f"output directory {parent} is not writable")
+
+
+def _nothing_selected(trajectory, format, topology, frames):
+    """The error for a frame selection that matched no frame of a readable trajectory."""
+    try:
+        total = count_frames(trajectory, format, topology=topology)
+    except Exception:  # noqa: BLE001 - only for the message
+        total = None
+    has = "" if total is None else f", which has {total} frame{'s' * (total != 1)}"
+    return TrajectoryError(
+        f"frames {_frames_text(frames)} selects no frame of {trajectory}{has} (read as "
+        f"{describe_format(trajectory, format, topology)}; frames are numbered from 0)")
+
+
 def compute_contacts(trajectory, output, params: ContactParams, *, format=None, topology=None,
                      frames=None, resume=True, overwrite=False, workers=None, scheduler=None,
                      progress=None, on_resume=None, commit_seconds=1.0, should_stop=None):
@@ -384,6 +424,15 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
     -------
     dict
         ``frames``, ``contacts``, ``seconds`` and a ``timing`` breakdown.
+
+    Raises
+    ------
+    granularsap.io.TrajectoryError
+        The trajectory is empty or not a trajectory, or ``frames`` selects none
+        of its frames: nothing is written.
+    IsADirectoryError, FileExistsError, FileNotFoundError, PermissionError
+        ``output`` cannot be written (see :func:`check_output`); raised before
+        any frame is read.
     """
     trajectory = os.fspath(trajectory)
     output = os.fspath(output)
@@ -392,8 +441,10 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
     if start < 0 or (stop is not None and stop < 0) or step <= 0:
         raise ValueError(f"frames must be START:STOP:STEP with non-negative START/STOP and "
                          f"positive STEP, got {_frames_text(frames)}")
-    if os.path.exists(output) and not overwrite:
-        raise FileExistsError(f"{output} already exists; remove it or pass overwrite")
+    if stop is not None and stop <= start:
+        raise ValueError(f"frames {_frames_text(frames)} selects no frame: STOP must be "
+                         "greater than START")
+    check_output(output, overwrite=overwrite)
     if not os.path.exists(trajectory):
         raise FileNotFoundError(f"trajectory {trajectory!r} does not exist")
     backend, sub = resolve_format(trajectory, format, topology)
@@ -446,10 +497,15 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
             # local workers see the file: each reads its own frames from their byte offsets
             from .lammps_dump import dump_frame_index
 
-            runner = _DaskRunner(workers=workers)
             offsets, lines = dump_frame_index(trajectory)
+            if len(offsets) == 0:  # not a dump, or nothing selected: the reader says which
+                for _ in iter_frames(trajectory, format, frames=todo, topology=topology):
+                    pass
             rows = [(offsets[k], lines[k], k) for k in range(len(offsets))[todo]]
-            results = runner.map_dump(trajectory, rows, params)
+            results = iter(())
+            if rows:
+                runner = _DaskRunner(workers=workers)
+                results = runner.map_dump(trajectory, rows, params)
         else:
             runner = _DaskRunner(workers=workers, scheduler=scheduler)
             results = runner.map_ordered(timed_frames(), params)
@@ -465,6 +521,8 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
                 progress.update(1)
             if should_stop is not None and should_stop():
                 raise KeyboardInterrupt
+        if done + n_new == 0:
+            raise _nothing_selected(trajectory, format, topology, slice(start, stop, step))
         timing["wall"] = time.perf_counter() - t_start
         timing["frames_this_run"] = n_new
         t0 = time.perf_counter()

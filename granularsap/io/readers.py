@@ -9,14 +9,44 @@ mature and we only translate their frames into :class:`Frame`.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import warnings
 
 import numpy as np
 
 from ._frame import Frame, box_to_cell
 from .lammps_dump import count_dump_frames, iter_lammps_dump, looks_like_dump
 
-__all__ = ["count_frames", "iter_frames", "resolve_format"]
+__all__ = ["TrajectoryError", "count_frames", "describe_format", "iter_frames",
+           "resolve_format"]
+
+#: what a trajectory may be, said in every "not a trajectory" message
+EXPECTED = ("expected a trajectory: a LAMMPS text dump, or a file ASE or MDAnalysis reads "
+            "(choose a reader with --format / format=)")
+
+
+class TrajectoryError(ValueError):
+    """A file that yields no frames: the message names the file, the reader tried and why."""
+
+
+@contextlib.contextmanager
+def _quiet_third_party():
+    """Silence the warnings ASE and MDAnalysis emit while they guess and open a file.
+
+    Probing a file that is not a trajectory makes them warn about their own
+    plumbing (an FHI-aims ``FutureWarning``, guessed masses ...); our error
+    message says what matters.  Only warnings raised from inside those packages
+    are ignored.
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", module=r"(ase|MDAnalysis)(\.|$)")
+        yield
+
+
+def _exception_text(exc):
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")
 
 _DUMP_SUFFIXES = {".dump", ".lammpstrj", ".lammpsdump"}
 #: trajectory formats only MDAnalysis reads (ASE reads .xyz, .traj, .extxyz, .cif, .pdb ...)
@@ -44,6 +74,47 @@ def resolve_format(path, format=None, topology=None):
     if suffix in _MDA_SUFFIXES:
         return "mdanalysis", None
     return "ase", None
+
+
+def describe_format(path, format=None, topology=None):
+    """How ``path`` is read, in words (for messages): reader and format tried."""
+    backend, sub = resolve_format(path, format, topology)
+    how = "given" if format is not None else "guessed from the file name and content"
+    if backend == "lammps-dump":
+        return f"a LAMMPS text dump, {how}"
+    if backend == "mdanalysis":
+        return f"MDAnalysis{f' format {sub!r}' if sub else ''}, {how}"
+    if sub is None:
+        sub = _ase_guess(path)[0]
+    return f"ASE format {sub!r}, {how}" if sub else f"ASE, {how}"
+
+
+def _hint(path):
+    """A pointer for files people pass by mistake (a contacts file instead of a trajectory)."""
+    try:
+        with open(path, "rb") as fh:
+            if fh.read(8) == b"\x89HDF\r\n\x1a\n":
+                return " (it is an HDF5 file: `granularsap info` reads contacts files)"
+    except OSError:
+        pass
+    return ""
+
+
+def _ase_guess(path):
+    """ASE's guess of the file's format, or ``(None, reason)`` if it has none."""
+    try:
+        from ase.io.formats import filetype
+    except ImportError:  # pragma: no cover - ase is a dependency of the io extra
+        return None, "ASE is not installed"
+    try:
+        with _quiet_third_party():
+            return filetype(os.fspath(path), read=True), None
+    except Exception as exc:  # noqa: BLE001 - ASE raises many kinds on a foreign file
+        return None, _exception_text(exc)
+
+
+def _includes_first(frames):
+    return (frames.start or 0) == 0 and (frames.stop is None or frames.stop > 0)
 
 
 def iter_frames(path, format=None, *, frames=None, topology=None, coordinates=None, **kwargs):
@@ -75,7 +146,12 @@ def iter_frames(path, format=None, *, frames=None, topology=None, coordinates=No
     Raises
     ------
     granularsap.io.DumpFormatError
-        After the good frames of a truncated or corrupt LAMMPS dump.
+        After the good frames of a truncated or corrupt LAMMPS dump, or at
+        once for a ``.dump`` file that is not one.
+    granularsap.io.TrajectoryError
+        If the file is empty, is not a trajectory the chosen reader can read,
+        or holds no frame at all (one line naming the file, the reader and
+        format tried, and why).
     FileNotFoundError
         If ``path`` does not exist.
 
@@ -93,14 +169,24 @@ def iter_frames(path, format=None, *, frames=None, topology=None, coordinates=No
     if not isinstance(frames, slice):
         raise TypeError(f"frames must be a slice, got {type(frames).__name__}")
     backend, sub = resolve_format(path, format, topology)
+    if os.path.isfile(path) and os.path.getsize(path) == 0:
+        raise TrajectoryError(f"{path} is empty (0 bytes); {EXPECTED}")
     if backend == "lammps-dump":
         if kwargs:
             raise TypeError(f"unexpected arguments for a LAMMPS dump: {', '.join(kwargs)}")
-        yield from iter_lammps_dump(path, frames=frames, coordinates=coordinates)
+        source = iter_lammps_dump(path, frames=frames, coordinates=coordinates)
     elif backend == "mdanalysis":
-        yield from _iter_mdanalysis(path, sub, frames, topology, kwargs)
+        source = _iter_mdanalysis(path, sub, frames, topology, kwargs)
     else:
-        yield from _iter_ase(path, sub, frames, kwargs)
+        source = _iter_ase(path, sub, frames, kwargs)
+    n = 0
+    for frame in source:
+        n += 1
+        yield frame
+    if n == 0 and _includes_first(frames):
+        raise TrajectoryError(f"{path}: no frames: read as "
+                              f"{describe_format(path, format, topology)}, it holds none; "
+                              f"{EXPECTED}")
 
 
 def count_frames(path, format=None, *, topology=None, **kwargs):
@@ -118,9 +204,17 @@ def _universe(path, sub, topology, kwargs):
 
     if sub is not None:
         kwargs = {"format": sub, **kwargs}
-    if topology is not None:
-        return mda.Universe(topology, path, **kwargs)
-    return mda.Universe(path, **kwargs)
+    try:
+        with _quiet_third_party():
+            if topology is not None:
+                return mda.Universe(topology, path, **kwargs)
+            return mda.Universe(path, **kwargs)
+    except (ImportError, MemoryError, FileNotFoundError):
+        raise
+    except Exception as exc:  # noqa: BLE001 - MDAnalysis raises many kinds on a foreign file
+        what = f"format {sub!r}" if sub else "the format its suffix suggests"
+        raise TrajectoryError(f"{path}: not a trajectory MDAnalysis can read as {what} "
+                              f"({_exception_text(exc)}); {EXPECTED}") from None
 
 
 def _iter_mdanalysis(path, sub, frames, topology, kwargs):
@@ -175,7 +269,29 @@ def _iter_ase(path, sub, frames, kwargs):
     start = frames.start or 0
     step = frames.step or 1
     index = slice(frames.start, frames.stop, frames.step)
-    for k, atoms in enumerate(ase.io.iread(path, index=index, format=sub, **kwargs)):
+    given = sub is not None
+    if sub is None:
+        sub, reason = _ase_guess(path)
+        if sub is None:
+            raise TrajectoryError(f"{path}: not a trajectory: ASE does not recognise its "
+                                  f"format ({reason}); {EXPECTED}")
+    how = "given" if given else "guessed from the file name and content"
+    reader = ase.io.iread(path, index=index, format=sub, **kwargs)
+    k = -1
+    while True:
+        try:
+            with _quiet_third_party():
+                atoms = next(reader)
+        except StopIteration:
+            return
+        except (ImportError, MemoryError):
+            raise
+        except Exception as exc:  # noqa: BLE001 - ASE raises many kinds on a foreign file
+            where = ("not a trajectory" if k < 0
+                     else f"frame {start + (k + 1) * step}: unreadable")
+            raise TrajectoryError(f"{path}: {where}: ASE could not read it as {sub!r} ({how}): "
+                                  f"{_exception_text(exc)}{_hint(path)}; {EXPECTED}") from None
+        k += 1
         n = len(atoms)
         arrays = atoms.arrays
         ids = np.asarray(arrays["id"], dtype=np.int64) if "id" in arrays else np.arange(n)
