@@ -13,12 +13,18 @@ import numpy as np
 from ._numba import max_threads
 
 
-def as_coords(x, name, *, ncols=3, allow_empty=True, check_finite=True):
+def as_coords(x, name, *, ncols=3, allow_empty=True, check_finite=True, single_row=False,
+              allow_bool=False):
     """Return ``x`` as a C-contiguous float64 ``(n, ncols)`` array of finite values.
 
     float32 input is widened exactly; integer input is converted; complex,
-    object and string input is a TypeError.  Never down-casts.  With
+    object, string and boolean input is a TypeError.  Never down-casts.  With
     ``check_finite=False`` the caller checks finiteness itself.
+
+    ``single_row=True`` reads a ``(ncols,)`` vector as one row (MDAnalysis
+    accepts a single coordinate); ``allow_bool=True`` reads booleans as 0 and
+    1 (as NumPy does).  Both are off by default: a ``(3,)`` array is refused
+    rather than taken for one box or one particle.
     """
     if hasattr(x, "positions") and not isinstance(x, np.ndarray):
         # MDAnalysis AtomGroup or similar
@@ -27,12 +33,18 @@ def as_coords(x, name, *, ncols=3, allow_empty=True, check_finite=True):
         arr = np.asarray(x)
     except Exception as exc:  # pragma: no cover - exotic inputs
         raise TypeError(f"{name} must be an array of numbers, got {type(x).__name__}") from exc
+    if arr.dtype.kind == "b" and not allow_bool:
+        raise TypeError(f"{name} must be an array of real numbers, got dtype bool; convert "
+                        f"it explicitly (e.g. {name}.astype(float)) if 0 and 1 are meant")
     if arr.dtype.kind not in "fiub":
         raise TypeError(f"{name} must be an array of real numbers, got dtype {arr.dtype}")
     if arr.dtype.kind == "f" and arr.dtype.itemsize > 8:
         raise TypeError(f"{name} must be float64 or narrower, got dtype {arr.dtype}; "
                         "convert it explicitly if the precision loss is acceptable")
     if arr.ndim == 1 and arr.shape[0] == ncols and ncols > 1:
+        if not single_row:
+            raise ValueError(f"{name} must have shape (n, {ncols}), got {arr.shape}; for a "
+                             f"single row pass {name}.reshape(1, {ncols})")
         arr = arr.reshape(1, ncols)
     if arr.ndim != 2 or arr.shape[1] != ncols:
         raise ValueError(f"{name} must have shape (n, {ncols}), got {arr.shape}")

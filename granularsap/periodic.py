@@ -22,9 +22,9 @@ what bounds the number of images.
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
+
+from .cell import Cell, translate
 
 __all__ = [
     "as_cell",
@@ -37,12 +37,17 @@ __all__ = [
     "wrap",
 ]
 
+#: Most ghost images one call may create (32 bytes each): a reach that needs
+#: more is refused rather than exhausting memory.
+MAX_GHOSTS = 1 << 28
+
 
 def cell_from_dimensions(dimensions):
     """Cell matrix (rows are cell vectors) from ``[lx, ly, lz, alpha, beta, gamma]``.
 
-    Same construction as ``MDAnalysis.lib.mdamath.triclinic_vectors`` but kept
-    in float64 and raising on invalid boxes instead of returning zeros.
+    ``Cell.from_dimensions(dimensions).matrix`` as a fresh writable array:
+    the construction of ``MDAnalysis.lib.mdamath.triclinic_vectors`` in
+    float64, raising on invalid boxes instead of returning zeros.
 
     Parameters
     ----------
@@ -66,44 +71,22 @@ def cell_from_dimensions(dimensions):
            [ 0., 10.,  0.],
            [ 0.,  0., 10.]])
     """
-    dim = np.asarray(dimensions, dtype=np.float64)
-    lx, ly, lz, alpha, beta, gamma = dim
-    if not np.all(dim[:3] > 0):
-        raise ValueError(f"box lengths must be positive, got {dim[:3].tolist()}")
-    if not all(0.0 < ang < 180.0 for ang in (alpha, beta, gamma)):
-        raise ValueError(f"box angles must lie strictly between 0 and 180 degrees, "
-                         f"got {dim[3:].tolist()}")
-    if alpha == beta == gamma == 90.0:
-        return np.diag(dim[:3]).astype(np.float64)
-    cell = np.zeros((3, 3), dtype=np.float64)
-    cell[0, 0] = lx
-    cos_alpha = 0.0 if alpha == 90.0 else np.cos(np.deg2rad(alpha))
-    cos_beta = 0.0 if beta == 90.0 else np.cos(np.deg2rad(beta))
-    if gamma == 90.0:
-        cos_gamma, sin_gamma = 0.0, 1.0
-    else:
-        cos_gamma = np.cos(np.deg2rad(gamma))
-        sin_gamma = np.sin(np.deg2rad(gamma))
-    cell[1, 0] = ly * cos_gamma
-    cell[1, 1] = ly * sin_gamma
-    cell[2, 0] = lz * cos_beta
-    cell[2, 1] = lz * (cos_alpha - cos_beta * cos_gamma) / sin_gamma
-    disc = lz * lz - cell[2, 0] ** 2 - cell[2, 1] ** 2
-    if not disc > 0:
-        raise ValueError(f"box angles {dim[3:].tolist()} do not form a cell of positive "
-                         "volume (each angle must be smaller than the sum of the other two)")
-    cell[2, 2] = np.sqrt(disc)
-    return cell
+    dim = np.asarray(dimensions)
+    if dim.shape != (6,):
+        raise ValueError(f"box must be [lx, ly, lz, alpha, beta, gamma], got shape {dim.shape}")
+    return np.array(Cell.coerce(dim, name="box").matrix)
 
 
 def as_cell(box, name="box", *, pbc=(True, True, True)):
     """Validate ``box`` and return a ``(3, 3)`` float64 cell matrix, or ``None``.
 
+    ``Cell.coerce(box, pbc, name).full_matrix`` as a fresh writable array.
+
     Parameters
     ----------
-    box : None, (6,) or (3, 3) array_like of float
+    box : None, Cell, (6,) or (3, 3) array_like of float
         ``None`` for open boundaries, MDAnalysis ``[lx, ly, lz, alpha, beta,
-        gamma]`` or a matrix whose rows are the cell vectors.
+        gamma]``, a matrix whose rows are the cell vectors, or a Cell.
     name : str
         Argument name used in error messages.
     pbc : (3,) sequence of bool
@@ -121,95 +104,30 @@ def as_cell(box, name="box", *, pbc=(True, True, True)):
     """
     if box is None:
         return None
-    arr = np.asarray(box)
-    if arr.dtype.kind not in "fiu":
-        raise TypeError(f"{name} must be an array of real numbers, got dtype {arr.dtype}")
-    arr = arr.astype(np.float64)
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
-    if arr.shape == (6,):
-        return cell_from_dimensions(arr)
-    if arr.shape != (3, 3):
-        raise ValueError(f"{name} must be [lx, ly, lz, alpha, beta, gamma] or a (3, 3) "
-                         f"matrix of cell vectors, got shape {arr.shape}")
-    cell = np.array(arr, dtype=np.float64, order="C")
-    pbc = as_pbc(pbc)
-    norms = np.linalg.norm(cell, axis=1)
-    for c in range(3):
-        if norms[c] == 0 and pbc[c]:
-            raise ValueError(f"{name} vector {c} is zero along a periodic axis; "
-                             "give a cell of positive volume")
-    if (norms == 0).any():
-        cell = _complete_cell(cell)
-    vol = abs(np.linalg.det(cell))
-    if not vol > 1e-12 * max(norms.max(), 1.0) ** 3:
-        raise ValueError(f"{name} is degenerate (zero volume): {arr.tolist()}")
-    return cell
-
-
-def _complete_cell(cell):
-    """Replace zero rows by unit vectors orthogonal to the non-zero ones (ASE)."""
-    cell = cell.copy()
-    missing = np.flatnonzero(np.linalg.norm(cell, axis=1) == 0)
-    present = [c for c in range(3) if c not in missing]
-    if len(missing) == 3:
-        return np.eye(3)
-    if len(missing) == 2:
-        v = cell[present[0]] / np.linalg.norm(cell[present[0]])
-        trial = np.eye(3)[np.argmin(np.abs(v))]
-        u1 = trial - v * (trial @ v)
-        u1 /= np.linalg.norm(u1)
-        u2 = np.cross(v, u1)
-        cell[missing[0]], cell[missing[1]] = u1, u2
-        if np.linalg.det(cell) < 0:
-            cell[missing[1]] = -u2
-        return cell
-    m = missing[0]
-    a, b = cell[(m + 1) % 3], cell[(m + 2) % 3]
-    n = np.cross(a, b)
-    cell[m] = n / np.linalg.norm(n)
-    return cell
+    return np.array(Cell.coerce(box, pbc=pbc, name=name).full_matrix)
 
 
 def as_pbc(pbc):
     """Return ``pbc`` as a length-3 bool ndarray (a scalar applies to all axes)."""
-    arr = np.asarray(pbc)
-    if arr.dtype.kind not in "biu":
-        raise TypeError(f"pbc must be booleans, got dtype {arr.dtype}")
-    arr = np.broadcast_to(arr.astype(bool), (3,)) if arr.ndim == 0 else arr.astype(bool)
-    if arr.shape != (3,):
-        raise ValueError(f"pbc must be a bool or three bools, got shape {arr.shape}")
-    return np.array(arr, dtype=bool)
+    return Cell(np.eye(3), pbc).pbc.copy()
 
 
 def perpendicular_widths(cell):
     """Distances between opposite faces of the cell, ``(3,)`` float64.
 
     ``w_c = volume / |a_{c+1} x a_{c+2}|``; equal to the edge lengths for an
-    orthorhombic cell.
+    orthorhombic cell (``Cell.perpendicular_widths``).
     """
-    cell = np.asarray(cell, dtype=np.float64)
-    if _is_diagonal(cell):
-        return np.abs(np.diag(cell)).copy()
-    vol = abs(np.linalg.det(cell))
-    areas = np.array([np.linalg.norm(np.cross(cell[(c + 1) % 3], cell[(c + 2) % 3]))
-                      for c in range(3)])
-    return vol / areas
-
-
-def _is_diagonal(cell):
-    return not np.any(cell - np.diag(np.diag(cell)))
+    return Cell(cell, False).perpendicular_widths.copy()
 
 
 def fractional(positions, cell):
-    """Fractional coordinates ``s`` with ``positions = s @ cell``."""
-    if _is_diagonal(cell):
-        return positions / np.diag(cell)
-    return np.linalg.solve(cell.T, positions.T).T
+    """Fractional coordinates ``s`` with ``positions = s @ cell`` (``Cell.fractional``)."""
+    return Cell(cell, False).fractional(positions)
 
 
 def wrap(positions, cell, pbc=(True, True, True)):
-    """Wrap positions into the cell along periodic axes.
+    """Wrap positions into the cell along periodic axes (``Cell.wrap``).
 
     Parameters
     ----------
@@ -225,30 +143,14 @@ def wrap(positions, cell, pbc=(True, True, True)):
     shifts : (n, 3) ndarray of int64
         Integer cell offsets such that ``positions = wrapped + shifts @ cell``
         (up to rounding).
+
+    Raises
+    ------
+    ValueError
+        A position is ``2**52`` cell lengths or more outside the cell along a
+        periodic axis (its wrapped value would carry no digit).
     """
-    pbc = as_pbc(pbc)
-    s = fractional(positions, cell)
-    shifts = np.floor(s).astype(np.int64)
-    shifts[:, ~pbc] = 0
-    wrapped = translate(positions, -shifts, cell)
-    return wrapped, shifts
-
-
-def translate(positions, shifts, cell):
-    """``positions + shifts @ cell``, adding the cell vectors one at a time.
-
-    Parameters
-    ----------
-    positions : (n, 3) array_like of float
-    shifts : (n, 3) ndarray of int
-    cell : (3, 3) ndarray of float64
-    """
-    out = np.array(positions, dtype=np.float64, copy=True)
-    for c in range(3):
-        nz = shifts[:, c] != 0
-        if nz.any():
-            out[nz] += shifts[nz, c, None].astype(np.float64) * cell[c]
-    return out
+    return Cell(cell, pbc).wrap(positions, return_shifts=True)
 
 
 def ghost_images(wrapped, cell, pbc, reach):
@@ -270,34 +172,87 @@ def ghost_images(wrapped, cell, pbc, reach):
         Particle index of each ghost.
     shift : (m, 3) ndarray of int64
         Lattice shift of each ghost: ghost position ``wrapped[owner] + shift @ cell``.
+        Rows are ordered by shift (lexicographically), then by owner.
+
+    Raises
+    ------
+    ValueError
+        ``wrapped`` is not wrapped (a fractional coordinate of ``2**52`` or
+        more), or ``reach`` needs more than ``MAX_GHOSTS`` images.
+
+    Notes
+    -----
+    The images of particle ``i`` along periodic axis ``c`` are the integers
+    ``t`` with ``-d <= s_c + t <= 1 + d`` (``d = reach_i / w_c``), found with
+    ``ceil`` and ``floor``: the cost is proportional to ``n`` plus the number
+    of ghosts, whatever the coordinates, never a loop over candidate images.
     """
     n = len(wrapped)
+    empty = np.empty(0, np.int64), np.empty((0, 3), np.int64)
+    pbc = np.asarray(pbc, dtype=bool)
     if n == 0 or not pbc.any():
-        return np.empty(0, np.int64), np.empty((0, 3), np.int64)
-    widths = perpendicular_widths(cell)
-    s = fractional(wrapped, cell)
+        return empty
+    cobj = Cell(cell, pbc)
+    widths = cobj.perpendicular_widths
+    s = cobj.fractional(wrapped)
+    big = ~(np.abs(s[:, pbc]) < 2.0**52)
+    if big.any():
+        row = int(np.flatnonzero(big.any(axis=1))[0])
+        raise ValueError("wrapped positions must lie in the cell along periodic axes (wrap "
+                         f"them first), got fractional coordinates {s[row].tolist()} in row "
+                         f"{row}")
     delta = reach[:, None] / widths[None, :]
-    layers = np.where(pbc, np.ceil(delta.max(axis=0)).astype(np.int64), 0)
+    layers = np.where(pbc, np.ceil(delta.max(axis=0)), 0.0)
     # only particles near a face of some periodic axis can have images
     near = np.zeros(n, dtype=bool)
     for c in np.flatnonzero(pbc):
         near |= (s[:, c] < delta[:, c]) | (s[:, c] > 1.0 - delta[:, c])
     idx = np.flatnonzero(near)
+    if len(idx) == 0:
+        return empty
     s_n, d_n = s[idx], delta[idx]
-    owners, shifts = [], []
-    ranges = [range(-int(m), int(m) + 1) for m in layers]
-    for t in itertools.product(*ranges):
-        if t == (0, 0, 0):
-            continue
-        ok = np.ones(len(idx), dtype=bool)
-        for c in range(3):
-            if pbc[c]:
-                sc = s_n[:, c] + t[c]
-                ok &= (sc >= -d_n[:, c]) & (sc <= 1.0 + d_n[:, c])
-        sel = idx[ok]
-        if len(sel):
-            owners.append(sel)
-            shifts.append(np.broadcast_to(np.array(t, dtype=np.int64), (len(sel), 3)))
-    if not owners:
-        return np.empty(0, np.int64), np.empty((0, 3), np.int64)
-    return np.concatenate(owners), np.ascontiguousarray(np.concatenate(shifts))
+    # per particle and axis, the image range lo..hi (within +-layers, as the
+    # fractional test asks); open axes keep 0 only
+    lo = np.zeros((len(idx), 3))
+    hi = np.zeros((len(idx), 3))
+    for c in np.flatnonzero(pbc):
+        sc, dc = s_n[:, c], d_n[:, c]
+        # the bounds, then settled by the test itself (s + t >= -d, s + t <= 1 + d)
+        # so that rounding of -d - s cannot move them by one
+        a = np.ceil(-dc - sc)
+        a = np.where(sc + (a - 1.0) >= -dc, a - 1.0, a)
+        a = np.where(sc + a < -dc, a + 1.0, a)
+        b = np.floor(1.0 + dc - sc)
+        b = np.where(sc + (b + 1.0) <= 1.0 + dc, b + 1.0, b)
+        b = np.where(sc + b > 1.0 + dc, b - 1.0, b)
+        lo[:, c] = np.maximum(a, -layers[c])
+        hi[:, c] = np.minimum(b, layers[c])
+    span = np.maximum(hi - lo + 1.0, 0.0)
+    count_f = span.prod(axis=1)
+    # the zero shift is not a ghost: drop it where it lies inside the ranges
+    has_zero = np.all((lo <= 0) & (hi >= 0), axis=1)
+    total = float(count_f.sum() - has_zero.sum())
+    if total > MAX_GHOSTS:
+        raise ValueError(f"reach {float(reach.max())!r} needs {total:.3g} ghost images, more "
+                         f"than the supported {MAX_GHOSTS}; use a smaller cutoff or a larger "
+                         "cell")
+    count = count_f.astype(np.int64)
+    keep = count > 0
+    idx, lo, span, count = idx[keep], lo[keep].astype(np.int64), span[keep].astype(np.int64), \
+        count[keep]
+    # enumerate every (particle, image) in mixed radix: k = (t0 * span1 + t1) * span2 + t2
+    rep = np.repeat(np.arange(len(idx)), count)
+    start = np.cumsum(count) - count
+    k = np.arange(int(count.sum()), dtype=np.int64) - start[rep]
+    t2 = k % span[rep, 2]
+    k //= span[rep, 2]
+    t1 = k % span[rep, 1]
+    t0 = k // span[rep, 1]
+    shift = np.stack([t0, t1, t2], axis=1) + lo[rep]
+    owner = idx[rep]
+    nonzero = shift.any(axis=1)
+    owner, shift = owner[nonzero], shift[nonzero]
+    if len(owner) == 0:
+        return empty
+    order = np.lexsort((owner, shift[:, 2], shift[:, 1], shift[:, 0]))
+    return owner[order], np.ascontiguousarray(shift[order])
