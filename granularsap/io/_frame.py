@@ -9,11 +9,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..cell import Cell
+
 __all__ = ["Frame", "box_to_cell", "cell_to_box"]
 
 
 def box_to_cell(box):
     """Cell matrix (rows are vectors, ASE form) of an MDAnalysis box.
+
+    ``Cell.from_dimensions(box).matrix`` as a fresh array.
 
     Parameters
     ----------
@@ -24,34 +28,21 @@ def box_to_cell(box):
     -------
     cell : (3, 3) ndarray of float64
         ``a`` along x, ``b`` in the xy plane (the LAMMPS/MDAnalysis orientation).
+
+    Raises
+    ------
+    ValueError
+        A length that is not positive or angles that do not form a cell.
     """
-    lx, ly, lz, alpha, beta, gamma = (float(v) for v in box)
-    ca, cb, cg = np.cos(np.radians([alpha, beta, gamma]))
-    sg = np.sin(np.radians(gamma))
-    if alpha == 90.0:
-        ca = 0.0
-    if beta == 90.0:
-        cb = 0.0
-    if gamma == 90.0:
-        cg, sg = 0.0, 1.0
-    cx = lz * cb
-    cy = lz * (ca - cb * cg) / sg
-    cz = np.sqrt(max(lz * lz - cx * cx - cy * cy, 0.0))
-    return np.array([[lx, 0.0, 0.0], [ly * cg, ly * sg, 0.0], [cx, cy, cz]], dtype=np.float64)
+    return np.array(Cell.from_dimensions(box).matrix)
 
 
 def cell_to_box(cell):
-    """MDAnalysis box ``[lx, ly, lz, alpha, beta, gamma]`` of a (3, 3) cell matrix."""
-    cell = np.asarray(cell, dtype=np.float64)
-    lengths = np.linalg.norm(cell, axis=1)
+    """MDAnalysis box ``[lx, ly, lz, alpha, beta, gamma]`` of a (3, 3) cell matrix.
 
-    def angle(u, v, nu, nv):
-        return np.degrees(np.arccos(np.clip(np.dot(u, v) / (nu * nv), -1.0, 1.0)))
-
-    a, b, c = cell
-    la, lb, lc = lengths
-    return np.array([la, lb, lc, angle(b, c, lb, lc), angle(a, c, la, lc), angle(a, b, la, lb)],
-                    dtype=np.float64)
+    ``Cell(cell).dimensions`` as a fresh array.
+    """
+    return np.array(Cell(cell).dimensions)
 
 
 @dataclass
@@ -114,6 +105,16 @@ class Frame:
         if self.cell is None or not np.all(np.linalg.norm(self.cell, axis=1) > 0):
             return None
         return cell_to_box(self.cell)
+
+    @property
+    def cell_object(self):
+        """The frame's :class:`granularsap.Cell` (cell, pbc and origin), or None.
+
+        None when the file has no box.
+        """
+        if self.cell is None:
+            return None
+        return Cell(self.cell, self.pbc, origin=self.origin)
 
     def column(self, name):
         """A per-particle column by name; ``radius`` falls back to ``diameter / 2``."""

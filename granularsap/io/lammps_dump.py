@@ -94,18 +94,15 @@ class _Lines:
 
 
 def _lammps_cell(bounds, tilt, general):
-    """(cell rows, origin) from the three BOX BOUNDS lines."""
+    """(cell rows, origin) from the three BOX BOUNDS lines (through ``Cell``)."""
+    from ..cell import Cell
+
     if general:
         rows = np.array(bounds, dtype=np.float64)  # ax ay az ox / bx by bz oy / cx cy cz oz
-        return rows[:, :3].copy(), rows[:, 3].copy()
-    (xlob, xhib), (ylob, yhib), (zlob, zhib) = bounds
-    xy, xz, yz = tilt
-    xlo = xlob - min(0.0, xy, xz, xy + xz)
-    xhi = xhib - max(0.0, xy, xz, xy + xz)
-    ylo = ylob - min(0.0, yz)
-    yhi = yhib - max(0.0, yz)
-    cell = np.array([[xhi - xlo, 0.0, 0.0], [xy, yhi - ylo, 0.0], [xz, yz, zhib - zlob]])
-    return cell, np.array([xlo, ylo, zlob])
+        cell = Cell(rows[:, :3], False, origin=rows[:, 3])
+    else:
+        cell = Cell.from_lammps(bounds, tilt, "ff ff ff")
+    return np.array(cell.matrix), np.array(cell.origin)
 
 
 def _parse_atoms(lines, ncol, path, frame, first_line):

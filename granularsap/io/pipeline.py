@@ -72,45 +72,26 @@ class ContactParams:
         return d
 
 
-def engine_cell(frame: Frame, reach: float):
-    """The cell to give the engine: None, or a (3, 3) matrix.
+def engine_cell(frame: Frame, reach: float | None = None):
+    """The cell to give the engine: None (open), or a :class:`granularsap.Cell`.
 
-    Non-periodic directions of a partly periodic box (LAMMPS ``f``/``s``/``m``
-    boundaries, ASE ``pbc=False`` on an axis) get a cell vector normal to the
-    periodic ones and long enough (more than twice the particles' extent plus
-    ``reach``) that no pair ever meets a periodic image along it.
+    The frame's cell, pbc and origin.  Non-periodic directions of a partly
+    periodic box (LAMMPS ``f``/``s``/``m`` boundaries, ASE ``pbc=False`` on an
+    axis) are open in the engine; their cell vectors are replaced by unit
+    vectors normal to the periodic ones (``Cell.full_matrix`` of the zeroed
+    rows), so that a tilt towards an open axis cannot narrow the periodic
+    widths.  The result depends on the frame's box only (not on where the
+    particles are), so a stateful search sees the same cell frame after frame.
+    ``reach`` is accepted for compatibility and not needed.
     """
+    from ..cell import Cell
+
     if frame.cell is None or not np.any(frame.pbc):
         return None
-    cell = np.array(frame.cell, dtype=np.float64)
-    if np.all(frame.pbc):
-        return cell
-    pos = frame.positions
-    extent = float(np.linalg.norm(pos.max(axis=0) - pos.min(axis=0))) if len(pos) else 0.0
-    length = 2.0 * (extent + reach) + 1.0 + float(np.abs(cell).max())
-    periodic = [k for k in range(3) if frame.pbc[k]]
-    basis = [cell[k] / np.linalg.norm(cell[k]) for k in periodic]
-    new = cell.copy()
-    for k in range(3):
-        if frame.pbc[k]:
-            continue
-        if len(basis) == 2:
-            v = np.cross(basis[0], basis[1])
-        else:  # Gram-Schmidt against what we have, starting from the original direction
-            v = cell[k] if np.linalg.norm(cell[k]) > 0 else np.eye(3)[k]
-            for b in basis:
-                v = v - np.dot(v, b) * b
-            if np.linalg.norm(v) < 1e-12:
-                v = np.eye(3)[k]
-                for b in basis:
-                    v = v - np.dot(v, b) * b
-        v = v / np.linalg.norm(v)
-        basis.append(v)
-        new[k] = length * v
-    if np.linalg.det(new) < 0:
-        k = next(k for k in range(3) if not frame.pbc[k])
-        new[k] = -new[k]
-    return new
+    pbc = np.asarray(frame.pbc, dtype=bool)
+    matrix = np.array(frame.cell, dtype=np.float64)
+    matrix[~pbc] = 0.0
+    return Cell(matrix, pbc, origin=frame.origin)
 
 
 def _radii(frame: Frame, params: ContactParams):
