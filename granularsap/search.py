@@ -395,8 +395,8 @@ class _Search:
             reg_start[1:] = np.cumsum(cap)[:-1]
             size = int(cap.sum())
             if not hasattr(self, "_vb") or len(self._vb) < size:
-                self._vb = np.empty(size + size // 8, np.int64)
-                self._vs = np.empty(size + size // 8, np.int64)
+                self._vb = np.empty(size + size // 8, np.int32)
+                self._vs = np.empty(size + size // 8, np.int32)
                 todo[:] = True
             self._kern.build(chunk_cols, start, nb0, nb1, pbc, tz, self._ws, self._rs,
                        self._ls, use_label, cell, stencil, rmax, reach, inv_w2,
@@ -409,10 +409,31 @@ class _Search:
             todo = over
             if int(cap.sum()) > len(self._vb):
                 todo[:] = True
+        if len(self._vb) > int(need.sum()) * 5 // 4 + 65536:
+            cap = self._compact(need, reg_start)
         self._vcap = cap
         self._vneed = need
         times["build"] = time.perf_counter() - t1
         return int(tested.sum())
+
+    def _compact(self, need, reg_start):
+        """Move the Verlet list into arrays sized to it (a first guess was large)."""
+        cap = need + need // 8 + 256
+        new_start = np.zeros(len(cap), np.int64)
+        new_start[1:] = np.cumsum(cap)[:-1]
+        size = int(cap.sum())
+        vb = np.empty(size, np.int32)
+        vs = np.empty(size, np.int32)
+        rows = self._chunk_rows
+        for c in range(len(need)):
+            a, b, k = int(reg_start[c]), int(new_start[c]), int(need[c])
+            vb[b:b + k] = self._vb[a:a + k]
+            vs[b:b + k] = self._vs[a:a + k]
+            shift = b - a
+            self._vstart[rows[c]:rows[c + 1]] += shift
+            self._vstop[rows[c]:rows[c + 1]] += shift
+        self._vb, self._vs = vb, vs
+        return cap
 
     def _narrow(self, skin, cell, use_m):
         if self._n == 0:
