@@ -33,7 +33,7 @@ _LAMMPS_OPEN = {"f", "s", "m"}
 def _as_pbc(pbc, name="pbc"):
     arr = np.asarray(pbc)
     if arr.dtype.kind not in "biu":
-        raise TypeError(f"{name} must be booleans, got dtype {arr.dtype}")
+        raise TypeError(f"{name} must be a bool or three bools, got dtype {arr.dtype}")
     if arr.ndim == 0:
         arr = np.broadcast_to(arr, (3,))
     if arr.shape != (3,):
@@ -57,8 +57,7 @@ def _matrix_from_dimensions(dim, name):
     if not np.all(dim[:3] > 0):
         raise ValueError(f"{name} lengths must be positive, got {dim[:3].tolist()}")
     if not all(0.0 < ang < 180.0 for ang in (alpha, beta, gamma)):
-        raise ValueError(f"{name} angles must lie strictly between 0 and 180 degrees, "
-                         f"got {dim[3:].tolist()}")
+        raise ValueError(f"{name} angles must be in (0, 180) degrees, got {dim[3:].tolist()}")
     if alpha == beta == gamma == 90.0:
         return np.diag(dim[:3]).astype(np.float64)
     cell = np.zeros((3, 3), dtype=np.float64)
@@ -173,12 +172,14 @@ class Cell:
         norms = np.linalg.norm(arr, axis=1)
         for c in range(3):
             if norms[c] == 0 and flags[c]:
-                raise ValueError(f"{name} vector {c} is zero along a periodic axis; "
-                                 "give a cell of positive volume")
+                raise ValueError(f"{name} vector {c} is zero along a periodic axis; {name} "
+                                 "must be a non-degenerate cell of positive volume (or make "
+                                 "that axis open: pbc False)")
         full = _complete(arr) if (norms == 0).any() else arr.copy()
         vol = abs(np.linalg.det(full))
         if not vol > 1e-12 * max(norms.max(), 1.0) ** 3:
-            raise ValueError(f"{name} is degenerate (zero volume): {arr.tolist()}")
+            raise ValueError(f"{name} must be a non-degenerate cell with positive volume, got "
+                             f"{arr.tolist()}")
         if origin is None:
             org = np.zeros(3)
         else:
@@ -305,8 +306,8 @@ class Cell:
         """
         if box is None:
             if pbc is not None and _as_pbc(pbc).any():
-                raise ValueError(f"pbc asks for periodic axes but {name} is None; give the "
-                                 "cell")
+                raise ValueError(f"pbc={tuple(bool(p) for p in _as_pbc(pbc))} needs a {name}; "
+                                 f"got {name}=None (give the cell, or pbc=False)")
             return None
         if isinstance(box, Cell):
             if pbc is None:

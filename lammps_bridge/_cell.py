@@ -19,17 +19,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from granularsap import Cell
 from granularsap.inputs import as_coords
 
 
 def cell_from_box(box):
     """Return ``box`` as a ``(3, 3)`` float64 cell matrix (rows are cell vectors).
 
+    ``granularsap.Cell.coerce(box).matrix`` as a fresh array.
+
     Parameters
     ----------
-    box : (6,) array_like of float or (3, 3) array_like of float
-        MDAnalysis form ``[lx, ly, lz, alpha, beta, gamma]`` (degrees) or an
-        ASE-style cell matrix.
+    box : (6,) array_like of float, (3, 3) array_like of float or Cell
+        MDAnalysis form ``[lx, ly, lz, alpha, beta, gamma]`` (degrees), an
+        ASE-style cell matrix or a :class:`granularsap.Cell`.
 
     Raises
     ------
@@ -37,72 +40,26 @@ def cell_from_box(box):
         On a wrong shape, non-finite values, non-positive lengths, impossible
         angles or a degenerate (zero-volume) cell.
     """
-    arr = np.asarray(box)
-    if arr.dtype.kind not in "fiu":
-        raise TypeError(f"box must be an array of real numbers, got dtype {arr.dtype}")
-    arr = np.asarray(arr, dtype=np.float64)
-    if not np.isfinite(arr).all():
-        raise ValueError("box must be finite, got NaN or inf")
-    if arr.shape == (6,):
-        lx, ly, lz, alpha, beta, gamma = arr
-        if min(lx, ly, lz) <= 0:
-            raise ValueError(f"box lengths must be positive, got {arr[:3].tolist()}")
-        if not all(0 < a < 180 for a in (alpha, beta, gamma)):
-            raise ValueError(f"box angles must be in (0, 180) degrees, got {arr[3:].tolist()}")
-
-        def _cos(deg):
-            return 0.0 if deg == 90.0 else float(np.cos(np.radians(deg)))
-
-        ca, cb, cg = _cos(alpha), _cos(beta), _cos(gamma)
-        sg = 1.0 if gamma == 90.0 else float(np.sin(np.radians(gamma)))
-        cx = lz * cb
-        cy = lz * (ca - cb * cg) / sg
-        czsq = lz * lz - cx * cx - cy * cy
-        if czsq <= 0:
-            raise ValueError(f"box angles {arr[3:].tolist()} do not describe a valid cell")
-        cell = np.array([[lx, 0.0, 0.0], [ly * cg, ly * sg, 0.0], [cx, cy, np.sqrt(czsq)]])
-    elif arr.shape == (3, 3):
-        cell = arr.copy()
-    else:
-        raise ValueError("box must be [lx, ly, lz, alpha, beta, gamma] or a (3, 3) cell "
-                         f"matrix, got shape {arr.shape}")
-    vol = abs(np.linalg.det(cell))
-    scale = np.prod(np.linalg.norm(cell, axis=1))
-    if not vol > 1e-12 * scale or scale == 0:
-        raise ValueError("box must be a non-degenerate cell with positive volume, "
-                         f"got {cell.tolist()}")
-    return cell
+    return np.array(Cell.coerce(box, name="box").matrix)
 
 
 def as_pbc(pbc, box):
-    """Per-axis periodicity as a tuple of three bools."""
+    """Per-axis periodicity as a tuple of three bools (all periodic by default).
+
+    ``pbc`` given with ``box=None`` must be all False.
+    """
     if box is None:
-        if pbc is None:
-            return (False, False, False)
-        flags = np.broadcast_to(np.asarray(pbc, dtype=bool), (3,))
-        if flags.any():
-            raise ValueError(f"pbc={tuple(bool(f) for f in flags)} needs a box; got box=None")
+        Cell.coerce(None, pbc=pbc, name="box")  # raises if pbc asks for periodic axes
         return (False, False, False)
     if pbc is None:
         return (True, True, True)
-    arr = np.asarray(pbc)
-    if arr.dtype.kind != "b":
-        raise TypeError(f"pbc must be a bool or three bools, got {pbc!r}")
-    if arr.shape not in ((), (3,)):
-        raise ValueError(f"pbc must be a bool or three bools, got shape {arr.shape}")
-    return tuple(bool(f) for f in np.broadcast_to(arr, (3,)))
+    return tuple(bool(f) for f in Cell(np.eye(3), pbc).pbc)
 
 
 def _restricted(v):
     """Lower-triangular LAMMPS form of the rows of ``v`` (same Gram matrix)."""
-    a, b, c = v
-    ax = np.linalg.norm(a)
-    bx = b @ a / ax
-    by = np.sqrt(max(b @ b - bx * bx, 0.0))
-    cx = c @ a / ax
-    cy = (b @ c - bx * cx) / by
-    cz = np.sqrt(max(c @ c - cx * cx - cy * cy, 0.0))
-    return np.array([[ax, 0.0, 0.0], [bx, by, 0.0], [cx, cy, cz]])
+    xlo, xhi, ylo, yhi, zlo, zhi, xy, xz, yz = Cell(v, False).to_lammps()
+    return np.array([[xhi - xlo, 0.0, 0.0], [xy, yhi - ylo, 0.0], [xz, yz, zhi - zlo]])
 
 
 @dataclass
