@@ -46,7 +46,7 @@ from ._validate import as_coords, check_n_threads
 from .search import ContactSearch
 from .search import as_radii as _as_radii
 
-__all__ = ["neighbor_list", "primitive_neighbor_list"]
+__all__ = ["NeighborList", "neighbor_list", "primitive_neighbor_list"]
 
 _EMPTY = {"i": ((0,), np.int64), "j": ((0,), np.int64), "d": ((0,), np.float64),
           "D": ((0, 3), np.float64), "S": ((0, 3), np.int64)}
@@ -368,3 +368,6 @@ def neighbor_list(quantities, a, cutoff, self_interaction=False, max_nbins=1e6, 
     return primitive_neighbor_list(quantities, a.pbc, np.asarray(a.cell), a.positions, cutoff,
                                    numbers=a.numbers, self_interaction=self_interaction,
                                    max_nbins=max_nbins, n_threads=n_threads)
+
+
+from .ase_neighborlist import NeighborList  # noqa: E402  (stateful drop-in)
