@@ -40,6 +40,7 @@ import functools
 import os
 import sys
 import threading
+import warnings
 
 import numba
 
@@ -74,22 +75,27 @@ def _tbb_usable():
     """True if numba's TBB threading layer would load in this process."""
     from numba.np.ufunc import parallel
 
-    try:
-        parallel._check_tbb_version_compatible()
-        from numba.np.ufunc import tbbpool  # noqa: F401
+    def loads():
+        # numba's own checks: TBB interface version >= 12060, then its extension
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # numba warns about a too-old TBB
+            try:
+                parallel._check_tbb_version_compatible()
+                from numba.np.ufunc import tbbpool  # noqa: F401
+            except Exception:  # ImportError, or anything a broken install raises
+                return False
         return True
-    except ImportError:
-        pass
+
+    if loads():
+        return True
     lib = _tbb_library()
     if lib is None:
         return False
     try:
         ctypes.CDLL(lib, mode=ctypes.RTLD_GLOBAL)
-        parallel._check_tbb_version_compatible()
-        from numba.np.ufunc import tbbpool  # noqa: F401, F811
-    except (OSError, ImportError):
+    except OSError:
         return False
-    return True
+    return loads()
 
 
 def _choose_threading_layer():
