@@ -267,8 +267,8 @@ class Cell:
         yhi = yhib - max(0.0, yz)
         for axis, lo, hi in (("x", xlo, xhi), ("y", ylo, yhi), ("z", zlob, zhib)):
             if not hi > lo:
-                raise ValueError(f"bounds give {axis}hi = {hi!r} <= {axis}lo = {lo!r}; "
-                                 "a LAMMPS box needs hi > lo on every axis")
+                raise ValueError(f"bounds give {axis}hi = {float(hi)!r} <= {axis}lo = "
+                                 f"{float(lo)!r}; a LAMMPS box needs hi > lo on every axis")
         matrix = np.array([[xhi - xlo, 0.0, 0.0], [xy, yhi - ylo, 0.0], [xz, yz, zhib - zlob]])
         return cls._new(matrix, pbc, np.array([xlo, ylo, zlob]), "bounds")
 
