@@ -47,7 +47,7 @@ from . import _mda_arith, periodic
 from ._validate import as_coords, as_scalar
 from .search import ContactSearch, NeighborSearch
 
-__all__ = ["Contacts", "capped_distance", "self_capped_distance"]  # noqa: F822 (lazy)
+__all__ = ["Contacts", "FastNS", "capped_distance", "self_capped_distance"]  # noqa: F822 (lazy)
 
 
 def __getattr__(name):
@@ -100,7 +100,7 @@ def _check_backend(backend):
 def _coords(x, name):
     if hasattr(x, "positions") and not isinstance(x, np.ndarray):
         x = x.positions
-    arr = as_coords(x, name)
+    arr = as_coords(x, name, single_row=True)  # MDAnalysis takes one (3,) coordinate
     # MDAnalysis computes from float32 coordinates (check_coords)
     big = np.abs(arr) > _F32_MAX
     if big.any():
@@ -348,3 +348,6 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
         a, b, dist = _decide_like_mdanalysis(ref, conf, a, b, dist, emulate[0], max_cutoff,
                                              method, beyond)
     return _finish(a, b, dist, min_cutoff, return_distances)
+
+
+from .mda_fastns import FastNS  # noqa: E402  (stateful drop-in; no MDAnalysis import)
