@@ -38,12 +38,8 @@ import numpy as np
 from . import periodic
 from ._numba import num_threads
 from ._validate import as_coords, as_scalar, as_vector, check_n_threads
+from .cell import Cell
 from .kernels import grid
-
-try:
-    from .cell import Cell as _Cell
-except ImportError:  # pragma: no cover - before the Cell type exists
-    _Cell = None
 
 __all__ = ["ContactSearch", "NeighborSearch"]
 
@@ -73,25 +69,16 @@ def _check_quantities(quantities):
 
 
 def _resolve_cell(box, pbc):
-    """(cell for distances, full matrix, pbc) of ``box`` and ``pbc``."""
-    cell_obj = None
-    if _Cell is not None and isinstance(box, _Cell):
-        cell_obj = box
-    if cell_obj is not None:
-        pbc_arr = cell_obj.pbc.copy() if pbc is None else periodic.as_pbc(pbc)
-        if not pbc_arr.any():
-            return None, None, np.zeros(3, bool)
-        full = np.ascontiguousarray(cell_obj.full_matrix, dtype=np.float64)
-        return full, full, pbc_arr
+    """(cell for distances, full matrix, pbc) of ``box`` and ``pbc``; Nones if open."""
     if box is None:
         if pbc is not None and periodic.as_pbc(pbc).any():
             raise ValueError("pbc asks for periodic axes but box is None; give the cell")
         return None, None, np.zeros(3, bool)
-    pbc_arr = np.ones(3, bool) if pbc is None else periodic.as_pbc(pbc)
-    full = periodic.as_cell(box, pbc=pbc_arr)
-    if not pbc_arr.any():
-        return None, None, pbc_arr
-    return np.ascontiguousarray(full, dtype=np.float64), full, pbc_arr
+    cell = Cell.coerce(box, pbc=pbc, name="box")
+    if cell is None or not cell.any_periodic:
+        return None, None, np.zeros(3, bool)
+    full = np.ascontiguousarray(cell.full_matrix, dtype=np.float64)
+    return full, full, np.array(cell.pbc, dtype=bool)
 
 
 class _Search:

@@ -193,10 +193,10 @@ class TestSphereContacts:
         (dict(radii=[1.0, 1.0]), ValueError, r"radii must be a scalar or have shape \(4,\)"),
         (dict(radii=[1.0, np.nan, 1, 1]), ValueError, r"radii must be finite"),
         (dict(skin=-0.1), ValueError, r"skin must be non-negative"),
-        (dict(box=[5, 5, 5, 90, 90, 190]), ValueError, r"box angles must lie strictly"),
+        (dict(box=[5, 5, 5, 90, 90, 190]), ValueError, r"box angles must be in \(0, 180\) degrees"),
         (dict(box=[5, 5, 5, 30, 30, 90]), ValueError, r"do not form a cell of positive volume"),
         (dict(box=np.zeros((3, 3))), ValueError, r"box vector 0 is zero"),
-        (dict(box=[[1, 0, 0], [2, 0, 0], [0, 0, 1]]), ValueError, r"box is degenerate"),
+        (dict(box=[[1, 0, 0], [2, 0, 0], [0, 0, 1]]), ValueError, r"box must be a non-degenerate cell"),
         (dict(box=[5, 5, 5, 90, 90, 90], radii=1.5), ValueError,
          r"interaction range 2 \* max\(radii\) \+ skin 3 exceeds half"),
     ])
