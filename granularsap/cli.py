@@ -17,6 +17,7 @@ SUBCOMMANDS = {
     "contacts": ("granularsap.io.cli_contacts", "contacts of every frame of a trajectory to HDF5"),
     "info": ("granularsap.io.cli_info", "summarise a contacts HDF5 file"),
     "validate": ("granularsap.validate", "compare granularsap with LAMMPS / MDAnalysis per frame"),
+    "warmup": ("granularsap.warmup", "compile the numba kernels now (they are cached on disk)"),
 }
 
 
