@@ -176,7 +176,9 @@ class Cell:
                                  "must be a non-degenerate cell of positive volume (or make "
                                  "that axis open: pbc False)")
         full = _complete(arr) if (norms == 0).any() else arr.copy()
-        vol = abs(np.linalg.det(full))
+        # exact for an orthorhombic cell, where det's LU rounding would show
+        vol = abs(float(np.prod(np.diag(full)))) if _is_diagonal(full) else \
+            abs(float(np.linalg.det(full)))
         if not vol > 1e-12 * max(norms.max(), 1.0) ** 3:
             raise ValueError(f"{name} must be a non-degenerate cell with positive volume, got "
                              f"{arr.tolist()}")
