@@ -43,7 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
             if exc.name and exc.name.startswith("granularsap"):
                 continue  # subcommand not part of this build
             raise
-        p = sub.add_parser(name, help=helptext, description=(mod.__doc__ or helptext).strip())
+        text = getattr(mod, "DESCRIPTION", None) or mod.__doc__ or helptext
+        p = sub.add_parser(name, help=helptext, description=text.strip())
         p.add_argument("--traceback", action="store_true", default=argparse.SUPPRESS,
                        help="show the full Python traceback on errors")
         mod.add_arguments(p)

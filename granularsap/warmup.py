@@ -26,6 +26,17 @@ import time
 
 __all__ = ["compile_notice", "warmup"]
 
+#: what ``granularsap warmup --help`` says
+DESCRIPTION = """\
+Compile granularsap's numba kernels now, so that the first real run does not.
+Kernels are compiled on first use and cached on disk (numba's cache: the
+__pycache__ folders of the installed package, or NUMBA_CACHE_DIR); a cold
+cache costs the first `granularsap contacts` about 20 s. This command calls
+sphere_contacts, neighbor_pairs, clump_contacts and box_overlaps on tiny open
+and periodic inputs; --only sphere_contacts,neighbor_pairs,clump_contacts
+compiles just what `granularsap contacts` needs.
+"""
+
 #: the public functions warmup compiles, in the order it calls them
 FUNCTIONS = ("sphere_contacts", "neighbor_pairs", "clump_contacts", "box_overlaps")
 
