@@ -292,3 +292,57 @@ class TestContentsEqualOracle:
             compute_contacts(dump, tmp_path / "n.h5", ContactParams())
         with pytest.raises(KeyError, match="no per-particle column 'rad'"):
             compute_contacts(dump, tmp_path / "n.h5", ContactParams(radius_column="rad"))
+
+
+class TestChangingParticleCounts:
+    """The writer with frames of 0 particles and particles that come and go (by id)."""
+
+    def frames(self):
+        rng = np.random.default_rng(11)
+        out, present = [], np.zeros(0, np.int64)
+        for f, n_new in enumerate([0, 12, 8, 0, -15, -5, 0, 6]):
+            if n_new > 0:  # insert particles with fresh ids
+                top = present.max() + 1 if len(present) else 1
+                present = np.concatenate([present, np.arange(top, top + n_new)])
+            elif n_new < 0:  # lose some at random
+                present = np.sort(rng.choice(present, len(present) + n_new, replace=False))
+            if len(present) > 1:
+                raw = rng.choice(present, (3 * len(present), 2))
+                raw = raw[raw[:, 0] != raw[:, 1]]
+                pairs = sort_pairs(np.unique(np.sort(raw, axis=1), axis=0))
+            else:
+                pairs = np.empty((0, 2), np.int64)
+            out.append(FrameResult(index=f, step=10 * f, time=None,
+                                   n_particles=len(present), cell=np.eye(3) * 9,
+                                   pbc=np.ones(3, bool), pairs=pairs,
+                                   distances=rng.uniform(0, 1, len(pairs))))
+        return out
+
+    @pytest.mark.parametrize("cut", [None, 1, 3, 6], ids=["whole", "resume1", "resume3",
+                                                          "resume6"])
+    def test_counts_and_births_deaths_by_id(self, tmp_path, cut):
+        res = self.frames()
+        counts = [r.n_particles for r in res]
+        assert 0 in counts[1:-1] and counts[0] == 0 and max(counts) > 15
+        out = tmp_path / "c.h5"
+        w = ContactsWriter(out, {"mode": "test"}, distances=True, commit_seconds=0)
+        for r in res[:cut]:
+            w.append(r)
+        if cut is not None:  # interrupted after `cut` frames (possibly after an empty one)
+            w.close()
+            w = ContactsWriter(out, {"mode": "test"}, distances=True, commit_seconds=0)
+            assert w.resumed and w.n_frames == cut
+            for r in res[cut:]:
+                w.append(r)
+        w.finish()
+        with ContactsFile(out) as cf:
+            np.testing.assert_array_equal(cf.n_particles, counts)
+            np.testing.assert_array_equal(cf.n_contacts, [len(r.pairs) for r in res])
+            for f, r in enumerate(res):
+                got = cf.pairs(f)
+                assert got.shape == (len(r.pairs), 2) and got.dtype == np.int64
+                np.testing.assert_array_equal(got, r.pairs)
+                np.testing.assert_array_equal(cf.distances(f), r.distances)
+                prev = pair_set(res[f - 1].pairs) if f else pair_set(r.pairs)
+                assert pair_set(cf.born(f)) == pair_set(r.pairs) - prev
+                assert pair_set(cf.died(f)) == prev - pair_set(r.pairs)
