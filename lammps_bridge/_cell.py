@@ -44,16 +44,18 @@ def cell_from_box(box):
 
 
 def as_pbc(pbc, box):
-    """Per-axis periodicity as a tuple of three bools (all periodic by default).
+    """Per-axis periodicity as a tuple of three bools.
 
-    ``pbc`` given with ``box=None`` must be all False.
+    Default: all periodic for an array box, the box's own for a Cell or an
+    ``ase.Atoms``.  ``pbc`` given with ``box=None`` must be all False.
     """
     if box is None:
         Cell.coerce(None, pbc=pbc, name="box")  # raises if pbc asks for periodic axes
         return (False, False, False)
-    if pbc is None:
+    if pbc is None and not isinstance(box, Cell) and not hasattr(box, "get_cell"):
         return (True, True, True)
-    return tuple(bool(f) for f in Cell(np.eye(3), pbc).pbc)
+    # a Cell or an ase.Atoms brings its own pbc unless pbc overrides it
+    return tuple(bool(f) for f in Cell.coerce(box, pbc=pbc, name="box").pbc)
 
 
 def _restricted(v):

@@ -506,3 +506,54 @@ class TestInputArrays:
 
         assert as_coords(np.array([1, 2, 3]), "x", single_row=True).shape == (1, 3)
         assert as_coords(np.ones((2, 3), bool), "x", allow_bool=True).tolist() == [[1.0] * 3] * 2
+
+
+class TestConsumers:
+    """The io pipeline and lammps_bridge take their cell through Cell."""
+
+    @pytest.mark.lammps
+    @pytest.mark.parametrize("pbc", [(True, False, True), (False, False, True), (True,) * 3])
+    def test_lammps_bridge_takes_a_cell_with_its_pbc(self, pbc):
+        import lammps_bridge
+
+        from .oracles import brute_image_pairs
+
+        rng = np.random.default_rng(12)
+        cell = Cell.from_dimensions(DIMS[2], pbc=pbc)
+        pos = rng.uniform(-3, 12, (80, 3))
+        want, _ = brute_image_pairs(pos, 2.2, cell.matrix, pbc=pbc)
+        got = lammps_bridge.neighbor_pairs(pos, 2.2, box=cell)
+        order = np.lexsort((got[:, 1], got[:, 0]))
+        assert np.array_equal(got[order], want)
+
+    def test_engine_cell_depends_on_the_box_only(self):
+        from granularsap.io import Frame
+        from granularsap.io.pipeline import engine_cell
+
+        rng = np.random.default_rng(13)
+        m = np.array([[10.0, 0, 0], [2.0, 9.0, 0], [1.5, -1.0, 8.0]])
+        cells = []
+        for spread in (1.0, 50.0):
+            fr = Frame(index=0, positions=rng.uniform(-spread, spread, (20, 3)),
+                       ids=np.arange(20), cell=m, pbc=np.array([True, True, False]),
+                       origin=np.array([1.0, 0.0, -2.0]))
+            cells.append(engine_cell(fr, 2.0))
+        assert cells[0] == cells[1] and cells[0].pbc.tolist() == [True, True, False]
+        assert np.array_equal(cells[0].matrix[:2], m[:2])
+        open_c = cells[0].full_matrix[2]  # normal to the periodic vectors, unit length
+        assert abs(open_c @ m[0]) < 1e-12 and abs(open_c @ m[1]) < 1e-12
+        assert engine_cell(Frame(index=0, positions=np.zeros((0, 3)), ids=np.zeros(0, int)),
+                           1.0) is None
+
+
+def test_docs_examples_run():
+    import doctest
+    import re
+
+    text = (Path(__file__).resolve().parent.parent / "docs" / "cells.md").read_text()
+    blocks = "\n".join(re.findall(r"```python\n(.*?)```", text, flags=re.S))
+    parser = doctest.DocTestParser()
+    test = parser.get_doctest(blocks, {}, "cells.md", "docs/cells.md", 0)
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    runner.run(test)
+    assert runner.failures == 0 and runner.tries > 10
