@@ -345,7 +345,9 @@ class Cell:
                 and np.array_equal(self._origin, other._origin))
 
     def __hash__(self):
-        return hash((self._matrix.tobytes(), self._pbc.tobytes(), self._origin.tobytes()))
+        # + 0.0 folds -0.0 into 0.0, which == already treats as equal
+        return hash(((self._matrix + 0.0).tobytes(), self._pbc.tobytes(),
+                     (self._origin + 0.0).tobytes()))
 
     def __repr__(self):
         pbc = tuple(bool(p) for p in self._pbc)
@@ -526,7 +528,10 @@ def translate(positions, shifts, cell):
     for c in range(3):
         nz = shifts[:, c] != 0
         if nz.any():
-            out[nz] += shifts[nz, c, None].astype(np.float64) * cell[c]
+            # only rows with a shift are touched (a zero shift must not turn -0.0
+            # into 0.0); ``where`` does that without gathering and scattering rows
+            step = shifts[:, c, None].astype(np.float64) * cell[c]
+            np.add(out, step, out=out, where=nz[:, None])
     return out
 
 

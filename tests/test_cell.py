@@ -263,6 +263,8 @@ class TestValueObject:
         assert a == b and hash(a) == hash(b) and len({a, b}) == 1
         assert a != Cell(a.matrix, True, origin=a.origin) and a != Cell(a.matrix, a.pbc)
         assert a != "box"
+        neg = Cell([[4.0, -0.0, 0], [1, 5, 0], [0, 0, 6]], [True, False, True], origin=[1, 2, 3])
+        assert neg == a and hash(neg) == hash(a)
         assert repr(a) == ("Cell([[4.0, 0.0, 0.0], [1.0, 5.0, 0.0], [0.0, 0.0, 6.0]], "
                            "pbc=(True, False, True), origin=[1.0, 2.0, 3.0])")
         assert pickle.loads(pickle.dumps(a)) == a
