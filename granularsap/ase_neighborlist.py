@@ -133,8 +133,8 @@ class NeighborList:
             raise ValueError(f"cutoffs must be a sequence of one float per atom, got {shape}")
         if cut.size and not (np.all(np.isfinite(cut)) and cut.min() >= 0):
             bad = int(np.flatnonzero(~(np.isfinite(cut) & (cut >= 0)))[0])
-            raise ValueError(f"cutoffs must be finite and non-negative, got {cut[bad]!r} at "
-                             f"index {bad}")
+            raise ValueError(f"cutoffs must be finite and non-negative, got {float(cut[bad])!r} "
+                             f"at index {bad}")
         try:
             skin = float(skin)
         except (TypeError, ValueError):
