@@ -168,6 +168,15 @@ class TestChangingSize:
         z = [2 * len(p) / n if n else 0.0 for n, p in want]
         np.testing.assert_allclose(c.results.coordination, z)
 
+    def test_updating_atomgroup_on_multiprocessing_equals_serial(self, slab):
+        ag = slab.select_atoms("prop z < 5.0", updating=True)
+        serial = Contacts(ag, radii="topology").run()
+        par = Contacts(ag, radii="topology").run(backend="multiprocessing", n_workers=2)
+        np.testing.assert_array_equal(par.results.n_atoms, serial.results.n_atoms)
+        np.testing.assert_array_equal(par.results.coordination, serial.results.coordination)
+        for a, b in zip(par.results.pairs, serial.results.pairs, strict=True):
+            np.testing.assert_array_equal(a, b)
+
     def test_updating_atomgroup_with_a_radius_array_is_refused(self, slab):
         ag = slab.select_atoms("prop z < 5.0", updating=True)
         c = Contacts(ag, radii=np.full(len(ag), 0.4))
