@@ -423,7 +423,8 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
         raise ValueError(f"frames must be START:STOP:STEP with non-negative START/STOP and "
                          f"positive STEP, got {_frames_text(frames)}")
     if stop is not None and stop <= start:
-        raise ValueError(f"frames {_frames_text(frames)} selects no frame: STOP must be "
+        raise ValueError(f"frames {_frames_text(slice(start, stop, step))} selects no frame: "
+                         "STOP must be "
                          "greater than START")
     check_output(output, overwrite=overwrite)
     if not os.path.exists(trajectory):
