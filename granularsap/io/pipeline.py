@@ -424,8 +424,7 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
                          f"positive STEP, got {_frames_text(frames)}")
     if stop is not None and stop <= start:
         raise ValueError(f"frames {_frames_text(slice(start, stop, step))} selects no frame: "
-                         "STOP must be "
-                         "greater than START")
+                         "STOP must be greater than START")
     check_output(output, overwrite=overwrite)
     if not os.path.exists(trajectory):
         raise FileNotFoundError(f"trajectory {trajectory!r} does not exist")
