@@ -290,3 +290,13 @@ class TestValidateOnWrongInput:
         assert captured.out == ""
         assert captured.err.strip() == ("granularsap validate: error: --frames selects no "
                                         f"frame of {dump}")
+
+
+def test_quick_start_outputs_are_ignored_by_git():
+    if shutil.which("git") is None or not os.path.isdir(os.path.join(ROOT, ".git")):
+        pytest.skip("not a git clone")
+    names = ["pour-contacts.h5", "pour-contacts.png", "bench.json", "bench-md.json",
+             "out.h5.partial/seg-000000.h5", "out.h5.tmp", "pour_contacts.h5", "dem_pour.png"]
+    proc = subprocess.run(["git", "check-ignore", "--no-index", *names], cwd=ROOT,
+                          capture_output=True, text=True, timeout=30)
+    assert sorted(proc.stdout.split()) == sorted(names), proc.stdout
