@@ -75,7 +75,8 @@ class TestAsCell:
         ([1, 2], ValueError, r"box must be \[lx, ly, lz, alpha, beta, gamma\] or a \(3, 3\) "
                              r"matrix of cell vectors, got shape \(2,\)"),
         ([[1, 0, 0], [0, 1, 0], [0, 0, np.nan]], ValueError, r"box must be finite"),
-        ([[1, 0, 0], [0, 1, 0], [1, 1, 0]], ValueError, r"box must be a non-degenerate cell with positive volume"),
+        ([[1, 0, 0], [0, 1, 0], [1, 1, 0]], ValueError,
+         r"box must be a non-degenerate cell with positive volume"),
         (np.diag([1.0, 0.0, 1.0]), ValueError, r"box vector 1 is zero along a periodic axis"),
         (["a"] * 6, TypeError, r"box must be an array of real numbers"),
     ])
