@@ -238,6 +238,13 @@ def _tie_tolerance(ref, pos, cell, reach_scale):
 # --------------------------------------------------------------------------- command
 
 def run(args) -> int:
+    from .warmup import compile_notice
+
+    with compile_notice():  # one line on stderr if kernels compile (a cold cache)
+        return _run(args)
+
+
+def _run(args) -> int:
     import numpy as np
 
     from .io import iter_frames
