@@ -559,3 +559,25 @@ def test_docs_examples_run():
     runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
     runner.run(test)
     assert runner.failures == 0 and runner.tries > 10
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), dims=st.sampled_from(DIMS),
+       k=st.tuples(*[st.integers(-10**5, 10**5)] * 3),
+       pbc=st.sampled_from([(True, True, True), (True, False, True)]))
+def test_translating_every_position_by_cell_vectors_changes_no_pair(seed, dims, k, pbc):
+    """Issue 12: pairs change only within rounding of the cutoff, distances only by rounding."""
+    rng = np.random.default_rng(seed)
+    cell = Cell.from_dimensions(dims, pbc=pbc)
+    pos = rng.uniform(0, 9, (40, 3))
+    cut = 2.5
+    moved = pos + (np.asarray(k) * np.asarray(pbc)) @ cell.matrix
+    a, da = granularsap.neighbor_pairs(pos, cut, box=cell)
+    b, db = granularsap.neighbor_pairs(moved, cut, box=cell)
+    tol = 1e-15 * (10 + np.abs(moved).max()) * 8
+    sa = {tuple(p): d for p, d in zip(a.tolist(), da, strict=True)}
+    sb = {tuple(p): d for p, d in zip(b.tolist(), db, strict=True)}
+    for p in set(sa) ^ set(sb):
+        assert abs(sa.get(p, sb.get(p)) - cut) <= tol
+    for p in set(sa) & set(sb):
+        assert abs(sa[p] - sb[p]) <= tol
