@@ -100,7 +100,8 @@ def _check_backend(backend):
 def _coords(x, name):
     if hasattr(x, "positions") and not isinstance(x, np.ndarray):
         x = x.positions
-    arr = as_coords(x, name, single_row=True)  # MDAnalysis takes one (3,) coordinate
+    # MDAnalysis takes one (3,) coordinate, and booleans as numbers
+    arr = as_coords(x, name, single_row=True, allow_bool=True)
     # MDAnalysis computes from float32 coordinates (check_coords)
     big = np.abs(arr) > _F32_MAX
     if big.any():

@@ -176,6 +176,7 @@ class _Search:
         # Coordinates so large that squared distances overflow (or so small that
         # they underflow) are scaled by a power of two, which is exact: every
         # comparison and every distance is the same as in unbounded arithmetic.
+        self._given = positions  # as the caller gave them, for messages
         mag = max(float(np.abs(positions).max()) if n else 0.0, reach_max,
                   float(np.abs(full).max()) if full is not None else 0.0)
         scale = 1.0
@@ -273,7 +274,7 @@ class _Search:
     def _raise_bad(self, bad, positions, pbc):
         if bad >= 0:
             raise ValueError(
-                f"positions row {bad} ({positions[bad].tolist()}) lies about "
+                f"positions row {bad} ({self._given[bad].tolist()}) lies about "
                 f"{grid.WRAP_LIMIT:.3g} cell lengths or more outside the cell along a "
                 "periodic axis: wrapping it into the cell would keep no significant digit. "
                 "Give coordinates within 2**52 cell lengths of the cell")
