@@ -410,3 +410,17 @@ class TestDumpsWrittenByLammps:
             np.testing.assert_allclose(fs.positions, fa.positions, rtol=1e-5, atol=1e-4)
             np.testing.assert_allclose(fs.radius, 0.4)
         assert moved  # some atoms crossed a boundary, so xu differs from x
+
+
+def test_degenerate_box_bounds_name_the_file_and_line(tmp_path):
+    import pathlib
+
+    data = pathlib.Path(__file__).resolve().parent.parent / "data"
+    lines = (data / "lj.dump").read_text().splitlines()
+    first = next(k for k, line in enumerate(lines) if line.startswith("ITEM: BOX"))
+    lines[first + 1] = "0 0 0"
+    path = tmp_path / "bad.dump"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DumpFormatError, match=r"bad.dump: frame 0, line \d+: BOX BOUNDS do not "
+                                              r"describe a cell: bounds give xhi"):
+        list(iter_frames(path))

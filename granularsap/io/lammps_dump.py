@@ -287,11 +287,14 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
                     want = 4 if general else (3 if triclinic else 2)
                     if any(len(r) < want for r in rows):
                         fail(f"BOX BOUNDS lines need {want} numbers")
-                    if general:
-                        cell, origin = _lammps_cell(rows, None, True)
-                    else:
-                        tilt = [r[2] for r in rows] if triclinic else [0.0, 0.0, 0.0]
-                        cell, origin = _lammps_cell([r[:2] for r in rows], tilt, False)
+                    try:
+                        if general:
+                            cell, origin = _lammps_cell(rows, None, True)
+                        else:
+                            tilt = [r[2] for r in rows] if triclinic else [0.0, 0.0, 0.0]
+                            cell, origin = _lammps_cell([r[:2] for r in rows], tilt, False)
+                    except ValueError as exc:
+                        fail(f"BOX BOUNDS do not describe a cell: {exc}")
                     header["cell"], header["origin"] = cell, origin
                     if len(flags) == 3:
                         header["pbc"] = np.array([f == "pp" for f in flags])
