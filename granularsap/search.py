@@ -368,8 +368,15 @@ class _Search:
         self._chunk_rows = start[chunk_cols]
         rows = np.diff(self._chunk_rows)
         if self._vcap is None or len(self._vcap) != n_chunks:
-            per = 64 if self._vcap is None else max(
-                8, int(self._vneed.sum() / max(n, 1) * 1.15) + 4)
+            if self._vcap is None:
+                # first build: entries per particle of a uniform system of this
+                # density (a chunk that needs more is swept again, exactly sized)
+                volume = abs(float(np.linalg.det(full))) * float(np.prod(span))
+                with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+                    est = 0.5 * n / volume * 4.0 / 3.0 * math.pi * (2.0 * rmax + reach) ** 3
+                per = int(min(64.0, 1.2 * est + 4)) if math.isfinite(est) else 64
+            else:
+                per = max(8, int(self._vneed.sum() / max(n, 1) * 1.15) + 4)
             cap = rows * per + 256
         else:
             cap = np.maximum(self._vneed + self._vneed // 8 + 256, rows * 4 + 256)
