@@ -290,6 +290,9 @@ class GranularSAPVerlet(GranularSAPSteady):
         why = super().unsupported(workload)
         if why is None and workload.kind == "boxes":
             return "boxes have no Verlet list (SweepAndPrune keeps its sort state instead)"
+        if why is None and len(workload.frames) < 2:
+            # repeating one frame would only ever re-test a kept list
+            return "Verlet caching is for trajectories only"
         return why
 
 
