@@ -328,6 +328,16 @@ def _keep(w, p, q, cell, s0, s1, s2, rs, ls, use_label, self_images, reach):
     return ok
 
 
+@ijit
+def _step(q, k, kf, lo, hi, wrap):
+    """Next element of a column read as a periodic sequence: past the end it wraps
+    to the start one period up, or (``wrap`` False) stops at ``hi``."""
+    q += 1
+    if q == hi and wrap:
+        return lo, k + 1, kf + 1.0
+    return q, k, kf
+
+
 @jit
 def _build_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, ws, rs, ls, use_label, cell, stencil,
                  rmax, reach, inv_w2, self_images, vstart, vstop, vb, vs, base, cap):
@@ -430,13 +440,9 @@ def _build_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, ws, rs, ls, use_label, ce
                     continue
                 kf = float(k)
                 while tz[q] + kf < lo_v:
-                    q += 1
+                    q, k, kf = _step(q, k, kf, lo2, hi2, p2)
                     if q == hi2:
-                        if not p2:
-                            break
-                        q = lo2
-                        k += 1
-                        kf += 1.0
+                        break
                 ptr_q[o] = q
                 ptr_k[o] = k
                 if q >= hi2:
@@ -453,13 +459,9 @@ def _build_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, ws, rs, ls, use_label, ce
                         vb[base + pos] = q
                         vs[base + pos] = _encode(s0, s1, k)
                     pos += np.int64(ok)
-                    q += 1
+                    q, k, kf = _step(q, k, kf, lo2, hi2, p2)
                     if q == hi2:
-                        if not p2:
-                            break
-                        q = lo2
-                        k += 1
-                        kf += 1.0
+                        break
             vstop[p] = base + min(pos, cap)
     return pos, tested
 
