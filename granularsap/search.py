@@ -372,8 +372,11 @@ class _Search:
                 # first build: entries per particle of a uniform system of this
                 # density (a chunk that needs more is swept again, exactly sized)
                 volume = abs(float(np.linalg.det(full))) * float(np.prod(span))
-                with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
-                    est = 0.5 * n / volume * 4.0 / 3.0 * math.pi * (2.0 * rmax + reach) ** 3
+                est = math.inf
+                if volume > 0:
+                    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+                        est = float(0.5 * n / np.float64(volume) * 4.0 / 3.0 * math.pi
+                                    * np.float64(2.0 * rmax + reach) ** 3)
                 per = int(min(64.0, 1.2 * est + 4)) if math.isfinite(est) else 64
             else:
                 per = max(8, int(self._vneed.sum() / max(n, 1) * 1.15) + 4)
