@@ -199,6 +199,21 @@ class TestAgreement:
         assert wres.reference is None and wres.speedup_vs_fastest is None
         assert all(r.ratio is None for r in wres.results)
 
+    def test_trajectory_peer_stopped_early_agrees_on_the_frames_it_ran(self):
+        def result(peer, frame_pairs, digest):
+            return harness.PeerResult(peer=peer, description="", threads=1, status="ok",
+                                      pairs=frame_pairs[0], digest=digest,
+                                      frame_pairs=frame_pairs, seconds=1.0, times=[1.0])
+
+        full = [5, 6, 7, 8]
+        wres = harness.judge(harness.WorkloadResult(
+            name="trajectory", label="t", kind="cutoff", n=10, n_frames=4, params={},
+            results=[result("granularsap", full, "aa/zz"), result("peer-a", full, "aa/zz"),
+                     result("stopped", full[:2], "aa"), result("wrong", [5, 9], "aa")]))
+        by = {r.peer: r.agrees for r in wres.results}
+        assert by == {"granularsap": True, "peer-a": True, "stopped": True, "wrong": False}
+        assert wres.disagreements == ["wrong"]
+
     def test_tie_has_no_consensus(self):
         assert harness.find_consensus({"a": (1, "x"), "b": (2, "y")}) is None
         assert harness.find_consensus({"a": (1, "x"), "b": (1, "x"), "c": (2, "y")}) \

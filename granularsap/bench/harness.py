@@ -355,13 +355,26 @@ def _signature(res):
     return (res.pairs, res.digest)
 
 
+def _agrees_on_prefix(res, model):
+    """A trajectory peer stopped early (``--max-seconds``) agrees if every frame it
+    ran has the consensus's pair count and its first frame the consensus's digest."""
+    if res.frame_pairs is None or model.frame_pairs is None or res.digest is None:
+        return False
+    n = len(res.frame_pairs)
+    if n >= len(model.frame_pairs) or res.frame_pairs != model.frame_pairs[:n]:
+        return False
+    return model.digest is not None and res.digest.split("/")[0] == model.digest.split("/")[0]
+
+
 def judge(wres):
     """Fill agreement, reference, ratios and the fastest-peer summary of ``wres``."""
     ran = [r for r in wres.results if r.status == "ok"]
     consensus = find_consensus({r.peer: _signature(r) for r in ran})
     wres.consensus = consensus
+    agreed = {r.peer: r for r in ran if consensus is not None and r.peer in consensus}
+    model = next(iter(agreed.values()), None)
     for r in ran:
-        r.agrees = consensus is not None and r.peer in consensus
+        r.agrees = r.peer in agreed or (model is not None and _agrees_on_prefix(r, model))
         if not r.agrees:
             wres.disagreements.append(r.peer)
     by_name = {r.peer: r for r in ran}
