@@ -69,16 +69,17 @@ def _check_quantities(quantities):
 
 
 def _resolve_cell(box, pbc):
-    """(cell for distances, full matrix, pbc) of ``box`` and ``pbc``; Nones if open."""
+    """(cell matrix, pbc) of ``box`` and ``pbc``: the Cell's full matrix (zero rows of
+    open axes completed), or None for open boundaries."""
     if box is None:
         if pbc is not None and periodic.as_pbc(pbc).any():
             raise ValueError("pbc asks for periodic axes but box is None; give the cell")
-        return None, None, np.zeros(3, bool)
+        return None, np.zeros(3, bool)
     cell = Cell.coerce(box, pbc=pbc, name="box")
     if cell is None or not cell.any_periodic:
-        return None, None, np.zeros(3, bool)
-    full = np.ascontiguousarray(cell.full_matrix, dtype=np.float64)
-    return full, full, np.array(cell.pbc, dtype=bool)
+        return None, np.zeros(3, bool)
+    return (np.ascontiguousarray(cell.full_matrix, dtype=np.float64),
+            np.array(cell.pbc, dtype=bool))
 
 
 class _Search:
@@ -156,14 +157,14 @@ class _Search:
     # --------------------------------------------------------------- frame
     def _frame(self, positions, rad, skin, box, pbc, labels, copy):
         t_start = time.perf_counter()
-        cell, full, pbc_arr = _resolve_cell(box, pbc)
+        cell, pbc_arr = _resolve_cell(box, pbc)
         n = len(positions)
         minimum = self.periodic_images == "minimum"
         rmax = float(rad.max()) if n else 0.0
         reach_max = 2.0 * rmax + skin
         periodic_run = cell is not None
         if periodic_run and minimum:
-            widths = periodic.perpendicular_widths(full)
+            widths = periodic.perpendicular_widths(cell)
             for c in np.flatnonzero(pbc_arr):
                 if reach_max > 0.5 * widths[c] * (1.0 + 1e-12):
                     raise ValueError(
@@ -178,7 +179,7 @@ class _Search:
         # comparison and every distance is the same as in unbounded arithmetic.
         self._given = positions  # as the caller gave them, for messages
         mag = max(float(np.abs(positions).max()) if n else 0.0, reach_max,
-                  float(np.abs(full).max()) if full is not None else 0.0)
+                  float(np.abs(cell).max()) if cell is not None else 0.0)
         scale = 1.0
         if mag > 2.0 ** 500 or 0.0 < mag < 2.0 ** -500:
             scale = math.ldexp(1.0, -math.frexp(mag)[1])
@@ -189,14 +190,13 @@ class _Search:
             reach_max *= scale
             if cell is not None:
                 cell = cell * scale
-                full = full * scale
         self._margin = self.rebuild_margin * scale
         threads = self.n_threads
         if threads is None and n < _PARALLEL_MIN:
             threads = 1
         with num_threads(threads) as threads:
             self._kern = grid.serial if threads == 1 else grid
-            result = self._run(positions, rad, skin, cell, full, pbc_arr, labels, n, rmax,
+            result = self._run(positions, rad, skin, cell, pbc_arr, labels, n, rmax,
                                reach_max, minimum, threads, t_start, scale)
         if scale != 1.0:
             if self.layout == "pairs":
@@ -209,13 +209,12 @@ class _Search:
             result = tuple(np.array(r) for r in result)
         return result[0] if len(result) == 1 else result
 
-    def _run(self, positions, rad, skin, cell, full, pbc, labels, n, rmax, reach_max, minimum,
+    def _run(self, positions, rad, skin, cell, pbc, labels, n, rmax, reach_max, minimum,
              threads, t_start, scale):
         self._frames += 1
         cell_k = cell if cell is not None else np.eye(3)
-        full_k = full if full is not None else np.eye(3)
-        diag = not np.any(full_k - np.diag(np.diag(full_k)))
-        hinv = np.ascontiguousarray(np.linalg.inv(full_k)) if not diag else np.eye(3)
+        diag = not np.any(cell_k - np.diag(np.diag(cell_k)))
+        hinv = np.ascontiguousarray(np.linalg.inv(cell_k)) if not diag else np.eye(3)
         key = (n, cell_k.tobytes(), pbc.tobytes(), skin, minimum, self.include_cutoff,
                labels is not None, scale)
         self._alloc_particles(n)
@@ -231,31 +230,28 @@ class _Search:
         elif margin == 0.0:
             reason = "no rebuild margin"
         times = {}
-        use_m = False
         max_disp = None
         t0 = time.perf_counter()
         if reason is None and n:
             n_chunks = len(self._chunk_rows) - 1
             disp2 = np.empty(n_chunks)
             bad = self._kern.wrap_sorted(positions, self._perm, hinv, cell_k, diag, pbc, self._ts,
-                                   full_k, n_chunks, self._t, self._ks, self._ws, self._m,
+                                   n_chunks, self._t, self._ks, self._ws, self._m,
                                    disp2)
-            self._raise_bad(bad, positions, pbc)
+            self._raise_bad(bad)
             max_disp = math.sqrt(float(disp2.max()))
             if max_disp > 0.5 * margin:
                 reason = f"a particle moved {max_disp:.6g} > rebuild_margin / 2"
-            else:
-                use_m = True
         times["wrap"] = time.perf_counter() - t0
         tested = None
         if reason is not None:
-            tested = self._build(positions, rad, skin, cell_k, full_k, hinv, diag, pbc, labels,
+            tested = self._build(positions, rad, skin, cell_k, hinv, diag, pbc, labels,
                                  n, rmax, reach_max, minimum, key, times)
             self._rebuilds += 1
         t0 = time.perf_counter()
-        total = self._narrow(skin, cell_k, use_m)
+        total = self._narrow(skin, cell_k)
         if (cell is not None and minimum and total
-                and 2.0 * reach_max >= periodic.perpendicular_widths(full_k)[pbc].min()
+                and 2.0 * reach_max >= periodic.perpendicular_widths(cell_k)[pbc].min()
                 * (1.0 - 1e-9)):
             total = self._dedup(total)
         times["narrow"] = time.perf_counter() - t0
@@ -271,7 +267,7 @@ class _Search:
         }
         return result
 
-    def _raise_bad(self, bad, positions, pbc):
+    def _raise_bad(self, bad):
         if bad >= 0:
             raise ValueError(
                 f"positions row {bad} ({self._given[bad].tolist()}) lies about "
@@ -279,7 +275,7 @@ class _Search:
                 "periodic axis: wrapping it into the cell would keep no significant digit. "
                 "Give coordinates within 2**52 cell lengths of the cell")
 
-    def _build(self, positions, rad, skin, cell, full, hinv, diag, pbc, labels, n, rmax,
+    def _build(self, positions, rad, skin, cell, hinv, diag, pbc, labels, n, rmax,
                reach_max, minimum, key, times):
         t0 = time.perf_counter()
         self._key = key
@@ -294,13 +290,13 @@ class _Search:
             times["sort"] = times["build"] = 0.0
             return 0
         bad = self._kern.wrap(positions, hinv, cell, diag, pbc, self._t, self._k, self._w)
-        self._raise_bad(bad, positions, pbc)
+        self._raise_bad(bad)
         t, w = self._t, self._w
         extent = float(np.abs(w).max()) + reach_max + self._margin
         guard = _GUARD * extent + np.finfo(np.float64).tiny
         reach = skin + self._margin + guard
         bin_range = 2.0 * rmax + reach + guard
-        widths = periodic.perpendicular_widths(full)
+        widths = periodic.perpendicular_widths(cell)
         lo = np.zeros(3)
         span = np.ones(3)
         for c in range(3):
@@ -343,7 +339,7 @@ class _Search:
         nb0, nb1 = nb
         self._grid_shape = (nb0, nb1)
         ncol = nb0 * nb1
-        grid.columns_of(t, pbc, lo, inv_f, nb0, nb1, self._col)
+        grid.columns_of(t, lo, inv_f, nb0, nb1, self._col)
         fresh = self._perm is None or len(self._perm) != n
         prev = np.arange(n, dtype=np.int64) if fresh else self._perm
         start = np.empty(ncol + 1, np.int64)
@@ -371,7 +367,7 @@ class _Search:
             if self._vcap is None:
                 # first build: entries per particle of a uniform system of this
                 # density (a chunk that needs more is swept again, exactly sized)
-                volume = abs(float(np.linalg.det(full))) * float(np.prod(span))
+                volume = abs(float(np.linalg.det(cell))) * float(np.prod(span))
                 est = math.inf
                 if volume > 0:
                     with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
@@ -433,7 +429,7 @@ class _Search:
         self._vb, self._vs = vb, vs
         return cap
 
-    def _narrow(self, skin, cell, use_m):
+    def _narrow(self, skin, cell):
         if self._n == 0:
             self._alloc_output(0)
             return 0
@@ -441,20 +437,17 @@ class _Search:
         counts = np.empty(len(rows) - 1, np.int64)
         strict = not self.include_cutoff
         self._kern.narrow_count(rows, self._vstart, self._vstop, self._vb, self._vs, self._ws,
-                          self._m, use_m, self._rs, skin, cell, strict, counts)
+                          self._m, self._rs, skin, cell, strict, counts)
         offsets = np.zeros(len(counts), np.int64)
         offsets[1:] = np.cumsum(counts)[:-1]
         total = int(counts.sum())
         self._alloc_output(total)
         q = self.quantities
         self._kern.narrow_fill(rows, offsets, counts, self._vstart, self._vstop, self._vb, self._vs,
-                         self._ws, self._m, use_m, self._rs, skin, cell, strict, self._perm,
-                         self._ks_now(use_m), "d" in q, "D" in q, "S" in q, self._out_p,
+                         self._ws, self._m, self._rs, skin, cell, strict, self._perm,
+                         self._ks, "d" in q, "D" in q, "S" in q, self._out_p,
                          self._out_d, self._out_v, self._out_s)
         return total
-
-    def _ks_now(self, use_m):
-        return self._ks
 
     def _dedup(self, total):
         """Pairs whose two images tie at exactly half a cell width: keep one."""
@@ -481,9 +474,8 @@ class _Search:
             col = np.empty(total, np.int64)
             want_d = "d" in self.quantities
             cd = np.empty(total if want_d else 0)
-            if n >= 0:
-                grid.csr_from_pairs(max(n, 0), self._out_p[:total], self._out_d[:total]
-                                    if want_d else cd, want_d, offsets, col, cd)
+            grid.csr_from_pairs(n, self._out_p[:total], self._out_d[:total] if want_d else cd,
+                                want_d, offsets, col, cd)
             return (offsets, col, cd) if want_d else (offsets, col)
         out = []
         for q in self.quantities:

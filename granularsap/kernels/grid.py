@@ -168,13 +168,13 @@ def wrap(x, hinv, cell, diag, pbc, t, k, w):
 
 
 @pjit
-def wrap_sorted(x, perm, hinv, cell, diag, pbc, t_build, full, n_chunks, t, k, w, m,
-                disp2):
+def wrap_sorted(x, perm, hinv, cell, diag, pbc, t_build, n_chunks, t, k, w, m, disp2):
     """Wrap particles into column order and measure their motion since the build.
 
-    ``m[p]`` is the image jump of particle ``perm[p]`` since the build and
-    ``disp2[chunk]`` the largest squared displacement (minimum image along
-    periodic axes, Cartesian through the full cell matrix ``full``).
+    ``m[p]`` is the image jump of particle ``perm[p]`` since the build (packed
+    like a shift code, minus the zero code) and ``disp2[chunk]`` the largest
+    squared displacement (minimum image along periodic axes, Cartesian through
+    ``cell``).
     Returns the first bad input row or -1.
     """
     n = x.shape[0]
@@ -204,9 +204,9 @@ def wrap_sorted(x, perm, hinv, cell, diag, pbc, t_build, full, n_chunks, t, k, w
                 m2 = np.int64(math.floor(f2 + 0.5))
                 f2 -= m2
             m[p] = _encode(m0, m1, m2) - _ZERO
-            dx = f0 * full[0, 0] + f1 * full[1, 0] + f2 * full[2, 0]
-            dy = f0 * full[0, 1] + f1 * full[1, 1] + f2 * full[2, 1]
-            dz = f0 * full[0, 2] + f1 * full[1, 2] + f2 * full[2, 2]
+            dx = f0 * cell[0, 0] + f1 * cell[1, 0] + f2 * cell[2, 0]
+            dy = f0 * cell[0, 1] + f1 * cell[1, 1] + f2 * cell[2, 1]
+            dz = f0 * cell[0, 2] + f1 * cell[1, 2] + f2 * cell[2, 2]
             d2 = dx * dx + dy * dy + dz * dz
             if not d2 <= mx:  # also catches nan
                 mx = d2 if d2 == d2 else np.inf
@@ -221,7 +221,7 @@ def wrap_sorted(x, perm, hinv, cell, diag, pbc, t_build, full, n_chunks, t, k, w
 
 
 @jit
-def columns_of(t, pbc, lo, inv_f, nb0, nb1, col):
+def columns_of(t, lo, inv_f, nb0, nb1, col):
     """Column index of every particle from its fractional coordinates."""
     n = t.shape[0]
     for i in range(n):
@@ -492,7 +492,7 @@ def _entry(code, m, p, q):
 
 
 @pjit
-def narrow_count(chunk_rows, vstart, vstop, vb, vs, ws, m, use_m, rs, skin, cell, strict,
+def narrow_count(chunk_rows, vstart, vstop, vb, vs, ws, m, rs, skin, cell, strict,
                  counts):
     """Pairs in range per chunk of rows (pass 1 of a frame)."""
     n_chunks = chunk_rows.shape[0] - 1
@@ -509,8 +509,21 @@ def narrow_count(chunk_rows, vstart, vstop, vb, vs, ws, m, use_m, rs, skin, cell
         counts[c] = cnt
 
 
+@ijit
+def _store3(out, o, a, b, c, flip):
+    """Row ``o`` of ``out`` is ``(a, b, c)``, negated if ``flip`` (from ``j`` to ``i``
+    into from ``i`` to ``j``)."""
+    if flip:
+        a = -a
+        b = -b
+        c = -c
+    out[o, 0] = a
+    out[o, 1] = b
+    out[o, 2] = c
+
+
 @pjit
-def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, use_m, rs, skin,
+def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, rs, skin,
                 cell, strict, perm, kw, want_d, want_vec, want_shift, out_p, out_d, out_v,
                 out_s):
     """Write each chunk's pairs from ``offsets[c]`` (pass 2 of a frame).
@@ -547,25 +560,11 @@ def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, use_m
                     out_d[o] = d
                 if want_vec:
                     dx, dy, dz = _separation(ws, p, q, cell, s0, s1, s2)
-                    if flip:
-                        dx = -dx
-                        dy = -dy
-                        dz = -dz
-                    out_v[o, 0] = dx
-                    out_v[o, 1] = dy
-                    out_v[o, 2] = dz
+                    _store3(out_v, o, dx, dy, dz, flip)
                 if want_shift:
                     # w = x - k @ cell:  D = x_q - x_p + (S - k_q + k_p) @ cell
-                    u0 = s0 - kw[q, 0] + kw[p, 0]
-                    u1 = s1 - kw[q, 1] + kw[p, 1]
-                    u2 = s2 - kw[q, 2] + kw[p, 2]
-                    if flip:
-                        u0 = -u0
-                        u1 = -u1
-                        u2 = -u2
-                    out_s[o, 0] = u0
-                    out_s[o, 1] = u1
-                    out_s[o, 2] = u2
+                    _store3(out_s, o, s0 - kw[q, 0] + kw[p, 0], s1 - kw[q, 1] + kw[p, 1],
+                            s2 - kw[q, 2] + kw[p, 2], flip)
                 o += np.int64(ok)
 
 
