@@ -1,0 +1,223 @@
+"""Ghost images and the Verlet layout for the box sweep of particles.
+
+The particle engine's candidate list can be built by the column sweep
+(``grid.py``) or by the paper's bi-dimensional Sweep and Prune over bounding
+cubes.  The second needs two things this module provides:
+
+*Ghosts.*  Along a periodic axis the sweep sees the images of the particles
+near the faces as extra boxes.  Only images with a lattice shift ``S`` that is
+lexicographically positive (first non-zero component > 0) are made: the image
+``(p, q, S)`` is then found as the box of particle ``p`` against the ghost
+``q + S`` when ``S > 0``, and as ``q`` against the ghost ``p - S`` when
+``S < 0``; the zero shift is a pair of real boxes.  So every image is found
+exactly once, and nothing is de-duplicated afterwards (pairs of two ghosts are
+dropped: the same image is a real-ghost pair).
+
+*Which ghosts.*  Boxes of half-widths ``h_p`` and ``h_q`` overlap only when
+every Cartesian component of the separation is at most ``h_p + h_q``; the
+fractional separation along axis ``c`` is then at most
+``(h_p + h_q) * sum_k |Hinv[k, c]|`` (the L1 norm of column ``c`` of the
+inverse cell matrix; ``1 / L_c`` in an orthorhombic cell, up to ``sqrt(3) /
+w_c`` in a triclinic one).  A ghost of ``q`` with shift ``S`` is made when
+``t_q + S`` is within that reach (with ``max(h)`` for ``h_p``) of the span of
+the real particles' fractional coordinates on every periodic axis.  The range
+of ``S_c`` is an integer interval per axis (``ceil`` / ``floor``), so several
+layers of images appear by themselves when the reach exceeds the cell.
+
+*Verlet layout.*  Entries are grouped by row ``p`` (``vstart[p]`` to
+``vstop[p]``): partner ``vb`` (int32) and shift ``vs`` packed like
+``grid.py``'s codes, three biased 10-bit fields.  Inside a row, entries are
+sorted by (partner, code) so the layout does not depend on the sweep's pair
+order (or on the thread count).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from .._numba import ijit, jit, pjit
+
+OFF = 512  # bias of one 10-bit shift field
+ZERO = (OFF << 20) | (OFF << 10) | OFF  # the code of a zero shift
+#: largest |S_c| a code holds (a field is 10 bits, biased by 512; one is left
+#: so that a negated shift is still a code)
+MAX_SHIFT = OFF - 1
+
+
+@ijit
+def encode(s0, s1, s2):
+    """Packed shift code of ``(s0, s1, s2)`` (``grid.py``'s layout)."""
+    return ((s0 + OFF) << 20) | ((s1 + OFF) << 10) | (s2 + OFF)
+
+
+@ijit
+def decode(code):
+    """``(s0, s1, s2)`` of a packed shift code."""
+    return (code >> 20) - OFF, ((code >> 10) & 1023) - OFF, (code & 1023) - OFF
+
+
+@ijit
+def _image_range(t, q, c, pbc, lo, hi, reach, l1, slack):
+    """Shifts ``[a, b]`` along axis ``c`` that bring ``t[q, c]`` within the reach
+    of the real span ``[lo[c], hi[c]]`` (``0, 0`` on an open axis)."""
+    if not pbc[c]:
+        return 0, 0
+    hc = reach * l1[c] * (1.0 + 1e-9) + slack[c]
+    a = math.ceil(lo[c] - hc - t[q, c])
+    b = math.floor(hi[c] + hc - t[q, c])
+    return np.int64(a), np.int64(b)
+
+
+@ijit
+def _positives(a, b):
+    """Integers above zero in ``[a, b]``."""
+    return max(np.int64(0), b - max(a, np.int64(1)) + 1)
+
+
+@pjit
+def count_ghosts(t, half, extra, pbc, lo, hi, l1, slack, counts):
+    """Ghosts of every particle: lexicographically positive shifts in its ranges."""
+    n = t.shape[0]
+    for q in numba.prange(n):
+        r = half[q] + extra
+        a0, b0 = _image_range(t, q, 0, pbc, lo, hi, r, l1, slack)
+        a1, b1 = _image_range(t, q, 1, pbc, lo, hi, r, l1, slack)
+        a2, b2 = _image_range(t, q, 2, pbc, lo, hi, r, l1, slack)
+        n0 = max(np.int64(0), b0 - a0 + 1)
+        n1 = max(np.int64(0), b1 - a1 + 1)
+        n2 = max(np.int64(0), b2 - a2 + 1)
+        cnt = _positives(a0, b0) * n1 * n2
+        if a0 <= 0 <= b0:
+            cnt += _positives(a1, b1) * n2
+            if a1 <= 0 <= b1:
+                cnt += _positives(a2, b2)
+        counts[q] = cnt if n0 > 0 else 0
+
+
+@pjit
+def fill_ghosts(ws, t, half, extra, pbc, lo, hi, l1, slack, cell, offsets, owner, code,
+                gpos):
+    """Owner, shift code and Cartesian position of every ghost (from ``offsets[q]``).
+
+    The position is ``ws[q] + s0 cell[0] + s1 cell[1] + s2 cell[2]``, summed in
+    that order (the order of ``grid.py``'s separation)."""
+    n = t.shape[0]
+    for q in numba.prange(n):
+        r = half[q] + extra
+        a0, b0 = _image_range(t, q, 0, pbc, lo, hi, r, l1, slack)
+        a1, b1 = _image_range(t, q, 1, pbc, lo, hi, r, l1, slack)
+        a2, b2 = _image_range(t, q, 2, pbc, lo, hi, r, l1, slack)
+        o = offsets[q]
+        for s0 in range(max(a0, np.int64(0)), b0 + 1):
+            for s1 in range(a1 if s0 > 0 else max(a1, np.int64(0)), b1 + 1):
+                first2 = a2 if (s0 > 0 or s1 > 0) else max(a2, np.int64(1))
+                for s2 in range(first2, b2 + 1):
+                    x = ws[q, 0]
+                    y = ws[q, 1]
+                    z = ws[q, 2]
+                    x += s0 * cell[0, 0]
+                    y += s0 * cell[0, 1]
+                    z += s0 * cell[0, 2]
+                    x += s1 * cell[1, 0]
+                    y += s1 * cell[1, 1]
+                    z += s1 * cell[1, 2]
+                    x += s2 * cell[2, 0]
+                    y += s2 * cell[2, 1]
+                    z += s2 * cell[2, 2]
+                    gpos[o, 0] = x
+                    gpos[o, 1] = y
+                    gpos[o, 2] = z
+                    owner[o] = q
+                    code[o] = encode(s0, s1, s2)
+                    o += 1
+
+
+@pjit
+def boxes(ws, half, gpos, owner, guard, lower, upper):
+    """Real boxes (rows ``0..n-1``) then ghost boxes, each widened by ``guard``."""
+    n = ws.shape[0]
+    g = gpos.shape[0]
+    for i in numba.prange(n + g):
+        if i < n:
+            h = half[i] + guard
+            for c in range(3):
+                lower[i, c] = ws[i, c] - h
+                upper[i, c] = ws[i, c] + h
+        else:
+            k = i - n
+            h = half[owner[k]] + guard
+            for c in range(3):
+                lower[i, c] = gpos[k, c] - h
+                upper[i, c] = gpos[k, c] + h
+
+
+@ijit
+def _image(pairs, t, n, owner, gcode, self_images):
+    """Row, partner and code of box pair ``t`` (row -1: not reported)."""
+    i = pairs[t, 0]
+    j = pairs[t, 1]
+    if j < n:  # two real boxes (i < j)
+        return i, j, np.int64(ZERO)
+    if i >= n:  # two ghosts: the same image is a real-ghost pair
+        return np.int64(-1), np.int64(0), np.int64(0)
+    k = j - n
+    q = owner[k]
+    if q == i and not self_images:
+        return np.int64(-1), np.int64(0), np.int64(0)
+    return i, q, np.int64(gcode[k])
+
+
+@jit
+def verlet_from_pairs(pairs, n, owner, gcode, self_images, vstart, vstop, fill):
+    """Rows of the Verlet layout: ``vstart``, ``vstop`` (CSR, ``vstop[p] ==
+    vstart[p + 1]``) and the write cursor ``fill``; returns the entry count."""
+    for p in range(n):
+        vstart[p] = 0
+    k = pairs.shape[0]
+    for t in range(k):
+        p, q, c = _image(pairs, t, n, owner, gcode, self_images)
+        if p >= 0:
+            vstart[p] += 1
+    total = np.int64(0)
+    for p in range(n):
+        m = vstart[p]
+        vstart[p] = total
+        fill[p] = total
+        total += m
+        vstop[p] = total
+    return total
+
+
+@jit
+def scatter(pairs, n, owner, gcode, self_images, fill, vb, vs):
+    """Write every reported image into its row (``fill`` is the cursor)."""
+    k = pairs.shape[0]
+    for t in range(k):
+        p, q, c = _image(pairs, t, n, owner, gcode, self_images)
+        if p >= 0:
+            e = fill[p]
+            vb[e] = q
+            vs[e] = c
+            fill[p] = e + 1
+
+
+@pjit
+def sort_rows(vstart, vstop, vb, vs):
+    """Sort each row by (partner, code): insertion sort (rows are short)."""
+    n = vstart.shape[0]
+    for p in numba.prange(n):
+        lo = vstart[p]
+        hi = vstop[p]
+        for e in range(lo + 1, hi):
+            b = vb[e]
+            s = vs[e]
+            f = e - 1
+            while f >= lo and (vb[f] > b or (vb[f] == b and vs[f] > s)):
+                vb[f + 1] = vb[f]
+                vs[f + 1] = vs[f]
+                f -= 1
+            vb[f + 1] = b
+            vs[f + 1] = s
