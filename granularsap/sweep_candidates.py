@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import time
 
+import numba
 import numpy as np
 
 from ._numba import num_threads
@@ -239,12 +240,15 @@ class SweepCandidates:
         t2 = time.perf_counter()
         vstart = np.empty(n, np.int64)
         vstop = np.empty(n, np.int64)
-        fill = np.empty(n, np.int64)
-        total = gk.verlet_from_pairs(pairs, n, owner, gcode, self_images, vstart, vstop, fill)
+        n_chunks = max(1, min(numba.get_num_threads(), len(pairs) // 65536))
+        cnt = np.empty((n_chunks, n), np.int64)
+        gk.row_counts(pairs, n, owner, gcode, self_images, cnt)
+        total = gk.row_offsets(cnt, vstart, vstop)
+        key = np.empty(total, np.int64)
+        gk.scatter_keys(pairs, n, owner, gcode, self_images, cnt, key)
         vb = np.empty(total, np.int32)
         vs = np.empty(total, np.int32)
-        gk.scatter(pairs, n, owner, gcode, self_images, fill, vb, vs)
-        gk.sort_rows(vstart, vstop, vb, vs)
+        gk.sort_split(vstart, vstop, key, vb, vs)
         t3 = time.perf_counter()
         sap = self._sap.stats
         self.stats = {

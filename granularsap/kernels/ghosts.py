@@ -38,7 +38,7 @@ import math
 import numba
 import numpy as np
 
-from .._numba import ijit, jit, pjit
+from .._numba import ijit, pjit
 
 OFF = 512  # bias of one 10-bit shift field
 ZERO = (OFF << 20) | (OFF << 10) | OFF  # the code of a zero shift
@@ -170,54 +170,77 @@ def _image(pairs, t, n, owner, gcode, self_images):
     return i, q, np.int64(gcode[k])
 
 
-@jit
-def verlet_from_pairs(pairs, n, owner, gcode, self_images, vstart, vstop, fill):
-    """Rows of the Verlet layout: ``vstart``, ``vstop`` (CSR, ``vstop[p] ==
-    vstart[p + 1]``) and the write cursor ``fill``; returns the entry count."""
-    for p in range(n):
-        vstart[p] = 0
-    k = pairs.shape[0]
-    for t in range(k):
-        p, q, c = _image(pairs, t, n, owner, gcode, self_images)
-        if p >= 0:
-            vstart[p] += 1
-    total = np.int64(0)
-    for p in range(n):
-        m = vstart[p]
-        vstart[p] = total
-        fill[p] = total
-        total += m
-        vstop[p] = total
-    return total
-
-
-@jit
-def scatter(pairs, n, owner, gcode, self_images, fill, vb, vs):
-    """Write every reported image into its row (``fill`` is the cursor)."""
-    k = pairs.shape[0]
-    for t in range(k):
-        p, q, c = _image(pairs, t, n, owner, gcode, self_images)
-        if p >= 0:
-            e = fill[p]
-            vb[e] = q
-            vs[e] = c
-            fill[p] = e + 1
+@ijit
+def _chunk(k, n_chunks, ch):
+    return ch * k // n_chunks, (ch + 1) * k // n_chunks
 
 
 @pjit
-def sort_rows(vstart, vstop, vb, vs):
-    """Sort each row by (partner, code): insertion sort (rows are short)."""
+def row_counts(pairs, n, owner, gcode, self_images, cnt):
+    """``cnt[ch, p]``: entries of row ``p`` among chunk ``ch`` of the box pairs."""
+    n_chunks = cnt.shape[0]
+    k = pairs.shape[0]
+    for ch in numba.prange(n_chunks):
+        for p in range(n):
+            cnt[ch, p] = 0
+        lo, hi = _chunk(k, n_chunks, ch)
+        for t in range(lo, hi):
+            p, q, c = _image(pairs, t, n, owner, gcode, self_images)
+            if p >= 0:
+                cnt[ch, p] += 1
+
+
+@pjit
+def row_offsets(cnt, vstart, vstop):
+    """Rows from the chunk counts (CSR: ``vstop[p] == vstart[p + 1]``); turns
+    ``cnt[ch, p]`` into chunk ``ch``'s first slot in row ``p``.  Returns the
+    entry count."""
+    n_chunks, n = cnt.shape
+    for p in numba.prange(n):
+        m = np.int64(0)
+        for ch in range(n_chunks):
+            m += cnt[ch, p]
+        vstop[p] = m
+    total = np.int64(0)
+    for p in range(n):
+        m = vstop[p]
+        vstart[p] = total
+        total += m
+        vstop[p] = total
+    for p in numba.prange(n):
+        o = vstart[p]
+        for ch in range(n_chunks):
+            m = cnt[ch, p]
+            cnt[ch, p] = o
+            o += m
+    return total
+
+
+@pjit
+def scatter_keys(pairs, n, owner, gcode, self_images, cnt, key):
+    """Every reported image into its row as ``partner << 32 | code``."""
+    n_chunks = cnt.shape[0]
+    k = pairs.shape[0]
+    for ch in numba.prange(n_chunks):
+        lo, hi = _chunk(k, n_chunks, ch)
+        for t in range(lo, hi):
+            p, q, c = _image(pairs, t, n, owner, gcode, self_images)
+            if p >= 0:
+                e = cnt[ch, p]
+                key[e] = (q << 32) | c
+                cnt[ch, p] = e + 1
+
+
+@pjit
+def sort_split(vstart, vstop, key, vb, vs):
+    """Sort each row by (partner, code) and split the keys into ``vb``, ``vs``."""
     n = vstart.shape[0]
     for p in numba.prange(n):
         lo = vstart[p]
         hi = vstop[p]
-        for e in range(lo + 1, hi):
-            b = vb[e]
-            s = vs[e]
-            f = e - 1
-            while f >= lo and (vb[f] > b or (vb[f] == b and vs[f] > s)):
-                vb[f + 1] = vb[f]
-                vs[f + 1] = vs[f]
-                f -= 1
-            vb[f + 1] = b
-            vs[f + 1] = s
+        if hi - lo > 1:
+            key[lo:hi].sort()
+        for e in range(lo, hi):
+            v = key[e]
+            vb[e] = np.int32(v >> 32)
+            vs[e] = np.int32(v & 0xFFFFFFFF)
