@@ -389,3 +389,69 @@ class TestKilledWorker:
                 assert str(exc) or type(exc).__name__
             else:
                 _assert_same_pairs(df, pairs, d)
+
+
+# ------------------------------------------------------------- command line
+@pytest.fixture(scope="module")
+def dump(tmp_path_factory):
+    from ._iohelpers import lammps_cell, random_frames, write_dump
+
+    path = tmp_path_factory.mktemp("domains") / "big.dump"
+    cell = lammps_cell(12.0, 11.0, 10.0, xy=1.0, xz=0.5, yz=-0.5)
+    write_dump(path, random_frames(700, 3, cell=cell, seed=5),
+               columns=("id", "type", "radius", "x", "y", "z"), shuffle_seed=2)
+    return path
+
+
+class TestCommandLine:
+    """`granularsap contacts --workers N` on large frames: spatial domains, same file."""
+
+    def test_workers_split_large_frames_into_domains(self, dump, tmp_path, capsys):
+        from granularsap.cli import main
+        from granularsap.io import ContactParams, compute_contacts
+
+        from .test_hdf5 import assert_same_contacts_file
+
+        serial = tmp_path / "serial.h5"
+        compute_contacts(dump, serial, ContactParams(skin=0.1, distances=True))
+        out = tmp_path / "domains.h5"
+        assert main(["contacts", str(dump), "-o", str(out), "--skin", "0.1", "--distances",
+                     "--workers", "2", "--domain-particles", "700"]) == 0
+        err = capsys.readouterr().err
+        assert "frame of 700 particles (>= 700, the domain threshold): each frame is split " \
+               "into 2 spatial domains" in err and "over 2 Dask workers" in err
+        assert_same_contacts_file(out, serial)
+        # below the threshold: one frame per worker, no such line
+        out2 = tmp_path / "frames.h5"
+        assert main(["contacts", str(dump), "-o", str(out2), "--skin", "0.1", "--distances",
+                     "--workers", "2", "--domain-particles", "701"]) == 0
+        assert "spatial domains" not in capsys.readouterr().err
+        assert_same_contacts_file(out2, serial)
+
+    def test_environment_threshold_on_existing_scheduler(self, client, tmp_path, monkeypatch):
+        from ase import Atoms
+        from ase.io import write
+
+        from granularsap.io import ContactParams, compute_contacts
+
+        from .test_hdf5 import assert_same_contacts_file
+
+        rng = np.random.default_rng(9)
+        cell = np.array([[9.0, 0, 0], [1.0, 8.5, 0], [0.5, -0.5, 8.0]])
+        frames = [Atoms("Ar" * 500, positions=rng.uniform(0, 1, (500, 3)) @ cell, cell=cell,
+                        pbc=(True, True, False)) for _ in range(2)]
+        traj = tmp_path / "f.extxyz"
+        write(traj, frames)
+        serial = tmp_path / "s.h5"
+        compute_contacts(traj, serial, ContactParams(cutoff=1.6, distances=True))
+        monkeypatch.setenv("GRANULARSAP_DOMAIN_PARTICLES", "400")
+        plans = []
+        out = tmp_path / "d.h5"
+        compute_contacts(traj, out, ContactParams(cutoff=1.6, distances=True),
+                         scheduler=client.scheduler.address, on_plan=plans.append)
+        assert len(plans) == 1 and "500 particles (>= 400" in plans[0]
+        assert_same_contacts_file(out, serial)
+        monkeypatch.setenv("GRANULARSAP_DOMAIN_PARTICLES", "many")
+        with pytest.raises(ValueError, match="GRANULARSAP_DOMAIN_PARTICLES must be a positive"):
+            compute_contacts(traj, tmp_path / "x.h5", ContactParams(cutoff=1.6),
+                             scheduler=client.scheduler.address)

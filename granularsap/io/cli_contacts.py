@@ -85,6 +85,11 @@ def add_arguments(parser):
                       help="start a local Dask cluster with N worker processes")
     dist.add_argument("--scheduler", default=None, metavar="ADDRESS",
                       help="use an existing dask.distributed scheduler, e.g. tcp://host:8786")
+    parser.add_argument("--domain-particles", type=_positive_int, default=None, metavar="N",
+                        help="with --workers/--scheduler: frames of at least N particles are "
+                             "each split into spatial domains over all the workers instead of "
+                             "one frame per worker (default: $GRANULARSAP_DOMAIN_PARTICLES or "
+                             "2000000)")
     parser.add_argument("--no-resume", action="store_true",
                         help="start over even if OUT.h5.partial from an interrupted run exists")
     parser.add_argument("--commit-seconds", type=_nonneg, default=1.0, metavar="S",
@@ -129,6 +134,10 @@ def run(args) -> int:
             print(f"resuming {args.output}.partial after {done} complete frames",
                   file=sys.stderr)
 
+    def on_plan(message):
+        if not args.quiet:
+            print(message, file=sys.stderr)
+
     import signal
 
     # SIGTERM/Ctrl-C: finish the frame in hand, commit, exit 130 (resumable); a second
@@ -165,7 +174,9 @@ def run(args) -> int:
                                        scheduler=args.scheduler, progress=bar,
                                        on_resume=on_resume,
                                        commit_seconds=args.commit_seconds,
-                                       should_stop=lambda: bool(stop))
+                                       should_stop=lambda: bool(stop),
+                                       domain_particles=args.domain_particles,
+                                       on_plan=on_plan)
     except KeyError as exc:
         raise CLIError(exc.args[0] if exc.args else str(exc)) from None
     except KeyboardInterrupt:

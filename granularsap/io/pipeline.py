@@ -5,12 +5,17 @@ The reader runs in the calling process; each frame's contacts are computed by
 ``dask.distributed`` cluster) and written in frame order by
 :class:`~granularsap.io.hdf5.ContactsWriter`.  At most a few frames per worker
 are in flight, so memory stays bounded whatever the trajectory length.
+
+On a cluster, frames of at least :func:`domain_threshold` particles are not
+sent one per worker: each is split into spatial domains over all the workers
+(:mod:`granularsap.dask`), and its pairs are gathered for the file.
 """
 
 from __future__ import annotations
 
 import collections
 import dataclasses
+import itertools
 import os
 import time
 from dataclasses import dataclass
@@ -21,7 +26,14 @@ from ._frame import Frame
 from .hdf5 import ContactsWriter, FrameResult, partial_path
 from .readers import TrajectoryError, count_frames, describe_format, iter_frames, resolve_format
 
-__all__ = ["ContactParams", "check_output", "compute_contacts", "engine_cell", "frame_contacts"]
+__all__ = ["DOMAIN_PARTICLES", "ContactParams", "check_output", "compute_contacts",
+           "domain_frame_contacts", "domain_threshold", "engine_cell", "frame_contacts"]
+
+#: Default frame size (particles) from which a distributed run splits every frame
+#: into spatial domains over the workers instead of sending one frame per worker.
+DOMAIN_PARTICLES = 2_000_000
+#: Environment variable that overrides :data:`DOMAIN_PARTICLES`.
+DOMAIN_PARTICLES_ENV = "GRANULARSAP_DOMAIN_PARTICLES"
 
 
 @dataclass(frozen=True)
@@ -205,6 +217,11 @@ def frame_contacts(frame: Frame, params: ContactParams, search: FrameSearch | No
     if search is None:
         search = FrameSearch(params)
     pairs, distances, clump_pairs = search(frame)
+    return _frame_result(frame, pairs, distances, clump_pairs, t0)
+
+
+def _frame_result(frame, pairs, distances, clump_pairs, t0):
+    """A :class:`FrameResult` from row-index pairs: particle ids, rows sorted."""
     if distances is not None:
         distances = np.array(distances, dtype=np.float64)
     pairs = frame.ids[np.asarray(pairs, dtype=np.int64).reshape(-1, 2)]
@@ -218,6 +235,95 @@ def frame_contacts(frame: Frame, params: ContactParams, search: FrameSearch | No
                        n_particles=frame.n_particles, cell=cell,
                        pbc=np.asarray(frame.pbc, dtype=bool), pairs=pairs, distances=distances,
                        clump_pairs=clump_pairs, seconds=time.perf_counter() - t0)
+
+
+def domain_threshold(domain_particles=None) -> int:
+    """Frame size (particles) from which a distributed run uses spatial domains.
+
+    ``domain_particles`` if given, else the environment variable
+    ``GRANULARSAP_DOMAIN_PARTICLES``, else :data:`DOMAIN_PARTICLES`.
+    """
+    if domain_particles is None:
+        text = os.environ.get(DOMAIN_PARTICLES_ENV)
+        if text is None:
+            return DOMAIN_PARTICLES
+        try:
+            domain_particles = int(text)
+        except ValueError:
+            raise ValueError(f"{DOMAIN_PARTICLES_ENV} must be a positive integer, got "
+                             f"{text!r}") from None
+    if isinstance(domain_particles, bool) or int(domain_particles) != domain_particles or \
+            domain_particles < 1:
+        raise ValueError(f"domain_particles must be a positive integer, got "
+                         f"{domain_particles!r}")
+    return int(domain_particles)
+
+
+def domain_frame_contacts(frame: Frame, params: ContactParams, client):
+    """Contacts of one large frame split into spatial domains over ``client``'s workers.
+
+    The same :class:`FrameResult` as :func:`frame_contacts` (pairs, distances
+    bit for bit), computed by :class:`granularsap.dask.DomainSearch`; the
+    pairs are gathered in the calling process for the contacts file.
+
+    Returns
+    -------
+    (FrameResult, DomainSearch)
+    """
+    from .. import dask as gdask
+
+    t0 = time.perf_counter()
+    common = dict(client=client, n_threads=params.n_threads)
+    if params.cutoff is not None:
+        search = gdask.DomainSearch(frame.positions, cutoff=params.cutoff,
+                                    cell=engine_cell(frame), **common)
+    else:
+        radii = frame.radius if frame.radius is not None else _radii(frame, params)
+        labels = frame.molecule if params.clumps else None
+        search = gdask.DomainSearch(frame.positions, radii=radii, skin=params.skin,
+                                    clump_ids=labels, cell=engine_cell(frame), **common)
+    df = client.compute(search.pairs()).result()
+    pairs = np.stack([df["i"].to_numpy(), df["j"].to_numpy()], axis=1).astype(np.int64)
+    pairs = pairs.reshape(-1, 2)
+    distances = df["distance"].to_numpy() if params.distances else None
+    del df
+    clump_pairs = None
+    if params.clumps:
+        mol = np.asarray(frame.molecule, dtype=np.int64)
+        clump_pairs = np.sort(np.stack([mol[pairs[:, 0]], mol[pairs[:, 1]]], axis=1), axis=1)
+        clump_pairs = (np.unique(clump_pairs, axis=0) if len(clump_pairs)
+                       else np.empty((0, 2), np.int64))
+    return _frame_result(frame, pairs, distances, clump_pairs, t0), search
+
+
+def _domain_results(frames, params, client, threshold, on_plan):
+    """Results of frames each split over the cluster; ``on_plan`` told once."""
+    told = False
+    for frame in frames:
+        res, search = domain_frame_contacts(frame, params, client)
+        if not told and on_plan is not None:
+            k0, k1, k2 = search.grid
+            on_plan(f"frame of {frame.n_particles} particles (>= {threshold}, the domain "
+                    f"threshold): each frame is split into {search.n_domains} spatial "
+                    f"domains ({k0}x{k1}x{k2}) over {search.n_workers} Dask workers")
+            told = True
+        yield res
+
+
+def _dump_frame_atoms(path, offset):
+    """``ITEM: NUMBER OF ATOMS`` of the dump frame starting at ``offset``, or None."""
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(offset)
+            for _ in range(8):
+                line = fh.readline()
+                if not line:
+                    return None
+                if line.startswith(b"ITEM: NUMBER OF ATOMS"):
+                    return int(fh.readline().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
 
 
 def _prefetch(iterable, depth=2):
@@ -368,7 +474,8 @@ def _nothing_selected(trajectory, format, topology, frames):
 
 def compute_contacts(trajectory, output, params: ContactParams, *, format=None, topology=None,
                      frames=None, resume=True, overwrite=False, workers=None, scheduler=None,
-                     progress=None, on_resume=None, commit_seconds=1.0, should_stop=None):
+                     progress=None, on_resume=None, commit_seconds=1.0, should_stop=None,
+                     domain_particles=None, on_plan=None):
     """Write the contacts of every selected frame of ``trajectory`` to ``output``.
 
     Parameters
@@ -400,6 +507,15 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
     should_stop : callable, optional
         Checked after every frame written; when it returns True the run stops
         with ``KeyboardInterrupt`` after committing what it has (resumable).
+    domain_particles : int, optional
+        With ``workers`` or ``scheduler``: when the first selected frame has at
+        least this many particles, every frame is split into spatial domains
+        over all the workers (:mod:`granularsap.dask`) instead of one frame per
+        worker.  Default :func:`domain_threshold` (environment variable
+        ``GRANULARSAP_DOMAIN_PARTICLES``, else 2,000,000).
+    on_plan : callable, optional
+        Called once with a one-line description when frames are split into
+        domains.
 
     Returns
     -------
@@ -426,6 +542,7 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
         raise ValueError(f"frames {_frames_text(slice(start, stop, step))} selects no frame: "
                          "STOP must be greater than START")
     check_output(output, overwrite=overwrite)
+    threshold = domain_threshold(domain_particles)
     if not os.path.exists(trajectory):
         raise FileNotFoundError(f"trajectory {trajectory!r} does not exist")
     backend, sub = resolve_format(trajectory, format, topology)
@@ -471,25 +588,41 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
                 timing["read"] += time.perf_counter() - t0
                 yield frame
 
+        frames_in = timed_frames()
+        n_first = rows = None
+        if workers is not None or scheduler is not None:
+            # the first frame's size chooses between one frame per worker and
+            # spatial domains over all the workers
+            if backend == "lammps-dump":
+                from .lammps_dump import dump_frame_index
+
+                offsets, lines = dump_frame_index(trajectory)
+                rows = [(offsets[k], lines[k], k) for k in range(len(offsets))[todo]]
+                n_first = _dump_frame_atoms(trajectory, int(rows[0][0])) if rows else None
+            else:
+                first = next(frames_in, None)
+                if first is not None:
+                    n_first = first.n_particles
+                    frames_in = itertools.chain([first], frames_in)
         if workers is None and scheduler is None:
             search = FrameSearch(params)
-            results = (frame_contacts(fr, params, search) for fr in _prefetch(timed_frames()))
+            results = (frame_contacts(fr, params, search) for fr in _prefetch(frames_in))
+        elif n_first is not None and n_first >= threshold:
+            runner = _DaskRunner(workers=workers, scheduler=scheduler)
+            results = _domain_results(_prefetch(frames_in, depth=1), params, runner.client,
+                                      threshold, on_plan)
         elif backend == "lammps-dump" and scheduler is None:
             # local workers see the file: each reads its own frames from their byte offsets
-            from .lammps_dump import dump_frame_index
-
-            offsets, lines = dump_frame_index(trajectory)
             if len(offsets) == 0:  # not a dump, or nothing selected: the reader says which
                 for _ in iter_frames(trajectory, format, frames=todo, topology=topology):
                     pass
-            rows = [(offsets[k], lines[k], k) for k in range(len(offsets))[todo]]
             results = iter(())
             if rows:
                 runner = _DaskRunner(workers=workers)
                 results = runner.map_dump(trajectory, rows, params)
         else:
             runner = _DaskRunner(workers=workers, scheduler=scheduler)
-            results = runner.map_ordered(timed_frames(), params)
+            results = runner.map_ordered(frames_in, params)
         for res in results:
             timing["compute"] += res.seconds
             timing["read"] += res.read_seconds
