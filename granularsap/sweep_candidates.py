@@ -238,21 +238,31 @@ class SweepCandidates:
         t1 = time.perf_counter()
         pairs = self._sap.update(lower, upper)
         t2 = time.perf_counter()
+        # two counting sorts: images by partner, then by row walking the
+        # partners in order, so every row comes out sorted by partner
         vstart = np.empty(n, np.int64)
         vstop = np.empty(n, np.int64)
-        n_chunks = max(1, min(numba.get_num_threads(), len(pairs) // 65536))
+        n_overlaps = len(pairs)
+        n_chunks = max(1, min(numba.get_num_threads(), n_overlaps // 65536))
         cnt = np.empty((n_chunks, n), np.int64)
-        gk.row_counts(pairs, n, owner, gcode, self_images, cnt)
-        total = gk.row_offsets(cnt, vstart, vstop)
+        gk.image_counts(pairs, n, owner, gcode, self_images, cnt, True)
+        qstart = np.empty(n, np.int64)
+        qstop = np.empty(n, np.int64)
+        total = gk.offsets(cnt, qstart, qstop)
         key = np.empty(total, np.int64)
-        gk.scatter_keys(pairs, n, owner, gcode, self_images, cnt, key)
+        gk.scatter_by_partner(pairs, n, owner, gcode, self_images, cnt, key)
+        del pairs
+        gk.row_counts(qstart, qstop, key, cnt)
+        gk.offsets(cnt, vstart, vstop)
         vb = np.empty(total, np.int32)
         vs = np.empty(total, np.int32)
-        gk.sort_split(vstart, vstop, key, vb, vs)
+        gk.scatter_rows(qstart, qstop, key, cnt, vb, vs)
+        del key
+        gk.sort_ties(vstart, vstop, vb, vs)
         t3 = time.perf_counter()
         sap = self._sap.stats
         self.stats = {
-            "n": n, "ghosts": n_ghosts, "boxes": n + n_ghosts, "overlaps": len(pairs),
+            "n": n, "ghosts": n_ghosts, "boxes": n + n_ghosts, "overlaps": n_overlaps,
             "candidates": int(total), "guard": guard,
             "sweep_candidates_tested": sap.get("candidates_tested"),
             "axes": sap.get("axes"),

@@ -176,49 +176,50 @@ def _chunk(k, n_chunks, ch):
 
 
 @pjit
-def row_counts(pairs, n, owner, gcode, self_images, cnt):
-    """``cnt[ch, p]``: entries of row ``p`` among chunk ``ch`` of the box pairs."""
+def image_counts(pairs, n, owner, gcode, self_images, cnt, by_partner):
+    """``cnt[ch, x]``: images among chunk ``ch`` of the box pairs with row
+    ``x`` (or, with ``by_partner``, partner ``x``)."""
     n_chunks = cnt.shape[0]
     k = pairs.shape[0]
     for ch in numba.prange(n_chunks):
-        for p in range(n):
-            cnt[ch, p] = 0
+        for x in range(n):
+            cnt[ch, x] = 0
         lo, hi = _chunk(k, n_chunks, ch)
         for t in range(lo, hi):
             p, q, c = _image(pairs, t, n, owner, gcode, self_images)
             if p >= 0:
-                cnt[ch, p] += 1
+                cnt[ch, q if by_partner else p] += 1
 
 
 @pjit
-def row_offsets(cnt, vstart, vstop):
-    """Rows from the chunk counts (CSR: ``vstop[p] == vstart[p + 1]``); turns
-    ``cnt[ch, p]`` into chunk ``ch``'s first slot in row ``p``.  Returns the
+def offsets(cnt, start, stop):
+    """CSR rows from the chunk counts (``stop[x] == start[x + 1]``); turns
+    ``cnt[ch, x]`` into chunk ``ch``'s first slot in row ``x``.  Returns the
     entry count."""
     n_chunks, n = cnt.shape
-    for p in numba.prange(n):
+    for x in numba.prange(n):
         m = np.int64(0)
         for ch in range(n_chunks):
-            m += cnt[ch, p]
-        vstop[p] = m
+            m += cnt[ch, x]
+        stop[x] = m
     total = np.int64(0)
-    for p in range(n):
-        m = vstop[p]
-        vstart[p] = total
+    for x in range(n):
+        m = stop[x]
+        start[x] = total
         total += m
-        vstop[p] = total
-    for p in numba.prange(n):
-        o = vstart[p]
+        stop[x] = total
+    for x in numba.prange(n):
+        o = start[x]
         for ch in range(n_chunks):
-            m = cnt[ch, p]
-            cnt[ch, p] = o
+            m = cnt[ch, x]
+            cnt[ch, x] = o
             o += m
     return total
 
 
 @pjit
-def scatter_keys(pairs, n, owner, gcode, self_images, cnt, key):
-    """Every reported image into its row as ``partner << 32 | code``."""
+def scatter_by_partner(pairs, n, owner, gcode, self_images, cnt, key):
+    """Every image into the bucket of its partner ``q``, as ``p << 32 | code``."""
     n_chunks = cnt.shape[0]
     k = pairs.shape[0]
     for ch in numba.prange(n_chunks):
@@ -226,21 +227,62 @@ def scatter_keys(pairs, n, owner, gcode, self_images, cnt, key):
         for t in range(lo, hi):
             p, q, c = _image(pairs, t, n, owner, gcode, self_images)
             if p >= 0:
-                e = cnt[ch, p]
-                key[e] = (q << 32) | c
-                cnt[ch, p] = e + 1
+                e = cnt[ch, q]
+                key[e] = (p << 32) | c
+                cnt[ch, q] = e + 1
+
+
+@ijit
+def _partner_chunk(n, n_chunks, ch):
+    return ch * n // n_chunks, (ch + 1) * n // n_chunks
 
 
 @pjit
-def sort_split(vstart, vstop, key, vb, vs):
-    """Sort each row by (partner, code) and split the keys into ``vb``, ``vs``."""
+def row_counts(qstart, qstop, key, cnt):
+    """``cnt[ch, p]``: entries of row ``p`` whose partner lies in chunk ``ch`` of
+    the partners (chunks of consecutive partners, in order)."""
+    n_chunks, n = cnt.shape
+    for ch in numba.prange(n_chunks):
+        for p in range(n):
+            cnt[ch, p] = 0
+        lo, hi = _partner_chunk(n, n_chunks, ch)
+        if hi > lo:
+            for e in range(qstart[lo], qstop[hi - 1]):
+                cnt[ch, key[e] >> 32] += 1
+
+
+@pjit
+def scatter_rows(qstart, qstop, key, cnt, vb, vs):
+    """Rows from the partner buckets, walked in increasing partner order: every
+    row comes out sorted by partner."""
+    n_chunks, n = cnt.shape
+    for ch in numba.prange(n_chunks):
+        lo, hi = _partner_chunk(n, n_chunks, ch)
+        for q in range(lo, hi):
+            for e in range(qstart[q], qstop[q]):
+                v = key[e]
+                p = v >> 32
+                o = cnt[ch, p]
+                vb[o] = np.int32(q)
+                vs[o] = np.int32(v & 0xFFFFFFFF)
+                cnt[ch, p] = o + 1
+
+
+@pjit
+def sort_ties(vstart, vstop, vb, vs):
+    """Rows sorted by partner: order the codes of equal partners (insertion sort,
+    linear on such rows)."""
     n = vstart.shape[0]
     for p in numba.prange(n):
         lo = vstart[p]
         hi = vstop[p]
-        if hi - lo > 1:
-            key[lo:hi].sort()
-        for e in range(lo, hi):
-            v = key[e]
-            vb[e] = np.int32(v >> 32)
-            vs[e] = np.int32(v & 0xFFFFFFFF)
+        for e in range(lo + 1, hi):
+            b = vb[e]
+            s = vs[e]
+            f = e - 1
+            while f >= lo and (vb[f] > b or (vb[f] == b and vs[f] > s)):
+                vb[f + 1] = vb[f]
+                vs[f + 1] = vs[f]
+                f -= 1
+            vb[f + 1] = b
+            vs[f + 1] = s
