@@ -17,6 +17,7 @@ import numpy as np
 
 from ._numba import num_threads
 from ._validate import as_coords, check_n_threads
+from .kernels import boxgrid as bg
 from .kernels import checks as _checks
 from .kernels import radixsort as rs
 from .kernels import succtree as st
@@ -34,6 +35,28 @@ _BUCKETS_PER_THREAD = 8
 #: (starting a parallel region costs more than the whole search).
 _PARALLEL_MIN = 32768
 MAX_BOXES = (1 << 30) - 1
+#: the algorithm paths of ``SweepAndPrune(path=...)``
+PATHS = ("auto", "sequential", "parallel", "columns")
+#: chunks of the column path's per-box passes (at most; fixed, not per thread)
+_MEASURE_CHUNKS = 64
+#: at most this fraction (1 / _BIG_FRACTION) of the boxes goes to the big list
+_BIG_FRACTION = 16
+#: columns: at least this many small boxes per column on average ...
+_BOXES_PER_COLUMN = 4
+#: ... and at most this many columns along one axis
+_MAX_SIDE = 1 << 20
+#: boxes per chunk of columns (parallel work unit, independent of threads)
+_CHUNK_BOXES = 4096
+#: big boxes per chunk
+_BIG_CHUNK = 256
+#: auto: fewer boxes than this take the paper's sweep
+_AUTO_MIN_BOXES = 4096
+#: auto: a larger ratio of the column width to the median box side takes the paper's sweep
+_AUTO_MAX_SPREAD = 4.0
+#: auto: candidates tested per (box + pair) of a column frame above which the
+#: paper's sweep takes over for _AUTO_RETRY frames
+_AUTO_MAX_CANDIDATES = 24
+_AUTO_RETRY = 16
 #: Pairs per box of the last search in this process: the first guess of a
 #: fresh engine's pair buffers (repeated one-shot calls on similar data then
 #: fill them in one pass).
@@ -132,8 +155,9 @@ class SweepAndPrune:
         #: Most bins of the third-axis sharding of the pairing active lists
         #: (1 = the paper's Algorithm 4 exactly).
         self.max_bins = 64
-        if path not in ("auto", "sequential", "parallel"):
-            raise ValueError(f"path must be 'auto', 'sequential' or 'parallel', got {path!r}")
+        if path not in PATHS:
+            raise ValueError(f"path must be one of {', '.join(map(repr, PATHS))}, "
+                             f"got {path!r}")
         self._path = None if path == "auto" else path
         self._partitions = None  # override of the number of partitions (tests)
         #: Boxes are cubes around spheres: keep pairs whose inscribed spheres
@@ -147,6 +171,21 @@ class SweepAndPrune:
         self._swaps = 0
         self._frame = 0
         self.stats = {}
+        # column path state (kept between frames: order, buffers, region sizes)
+        self._g_meas = None
+        self._g_perm = None
+        self._g_start = None
+        self._g_out = None
+        self._g_caps = None
+        self._g_ratio = None
+        self._g_z = None
+        self._g_big_engine = None
+        # what auto measured: the paper sweep's dispersion, per-path history
+        self._sap_disp = {}
+        self._history = {}
+        self._last_path = None
+        self._g_avoid_until = 0
+        self._g_avoid_reason = ""
 
     # ------------------------------------------------------------------ buffers
     def _ensure(self, n, parts, buckets):
@@ -201,7 +240,12 @@ class SweepAndPrune:
         the input boxes, the returned pairs and the per-partition pair staging
         buffers (``staging_nbytes``, about the size of the last output)."""
         seen = {id(self._out)} if hasattr(self, "_out") else set()
+        seen.add(id(self._g_out))
         total = 0
+        if self._g_meas is not None:
+            total += sum(a.nbytes for a in self._g_meas)
+        if self._g_big_engine is not None:
+            total += self._g_big_engine.nbytes
         for value in vars(self).values():
             if isinstance(value, np.ndarray):
                 base = value if value.base is None else value.base
@@ -218,7 +262,12 @@ class SweepAndPrune:
     def staging_nbytes(self):
         """Bytes of the per-partition buffers pairs are written to before
         being concatenated into the returned array."""
-        return self._out.nbytes if hasattr(self, "_out") else 0
+        total = self._out.nbytes if hasattr(self, "_out") else 0
+        if self._g_out is not None:
+            total += self._g_out.nbytes
+        if self._g_big_engine is not None:
+            total += self._g_big_engine.staging_nbytes
+        return total
 
     # ------------------------------------------------------------------ update
     def update(self, lower, upper):
@@ -249,8 +298,27 @@ class SweepAndPrune:
 
     def _update(self, lower, upper, threads):
         t_start = time.perf_counter()
+        self._frame += 1
+        geometry = None
+        if self._path is not None:
+            path, reason = self._path, f"path={self._path!r} was asked for"
+        else:
+            geometry = self._geometry(lower, upper, threads)
+            path, reason = self._choose(lower.shape[0], geometry)
+        if path == "columns":
+            pairs = self._update_columns(lower, upper, threads, t_start, geometry)
+        else:
+            pairs = self._update_sap(lower, upper, threads, t_start, path)
+        self.stats["path_reason"] = reason
+        self._last_path = path
+        st_ = self.stats
+        self._history[path] = {"frame": self._frame, "n": st_["n"],
+                               "seconds": st_["seconds"]["total"],
+                               "tested": st_["candidates_tested"], "pairs": st_["pairs"]}
+        return pairs
+
+    def _update_sap(self, lower, upper, threads, t_start, path):
         n = lower.shape[0]
-        path = self._path or "parallel"
         parts = 1 if path == "sequential" else (self._partitions or threads)
         buckets = max(1, min(max(_MIN_BUCKETS, _BUCKETS_PER_THREAD * threads),
                              (2 * n) // _MIN_BUCKET))
@@ -259,7 +327,6 @@ class SweepAndPrune:
         fresh = self._ensure(n, parts, buckets)
         a0, a1 = self._axes
         a2 = 3 - a0 - a1
-        self._frame += 1
         stats = {"frame": self._frame, "n": n, "threads": threads, "path": path,
                  "partitions": parts, "buckets": buckets, "fresh": fresh}
         if n < 2:
@@ -366,7 +433,249 @@ class SweepAndPrune:
         self._finish(stats, pairs, tested,
                      {"sort": t1 - t0, "candidates": cand_s, "pairing": t3 - t1 - cand_s},
                      disp, t_start)
+        self._sap_disp = dict(disp)
         self._maybe_swap(disp, trusted)
+        return pairs
+
+    # ------------------------------------------------------------ path choice
+    def _choose(self, n, geo):
+        """``(path, reason)`` for this frame (``path="auto"``).
+
+        The column sweep wins when the boxes have similar sizes (its columns
+        are as wide as the largest small box); the paper's sweep when there
+        are few boxes, when sizes spread widely, or when the last column
+        frame tested many more candidates than it found pairs."""
+        if n < _AUTO_MIN_BOXES:
+            return "parallel", (f"{n} boxes: below {_AUTO_MIN_BOXES}, the paper's sweep "
+                                "costs less than building columns")
+        spread = geo["spread"]
+        if spread > _AUTO_MAX_SPREAD:
+            return "parallel", (f"box sizes spread {spread:.1f}x (largest small box over the "
+                                f"median, above {_AUTO_MAX_SPREAD:g}): columns would be too "
+                                "wide, so the paper's sweep")
+        last = self._history.get("columns")
+        if self._frame < self._g_avoid_until:
+            return "parallel", self._g_avoid_reason
+        if last is not None and last["frame"] == self._frame - 1:
+            per = last["tested"] / max(last["pairs"] + last["n"], 1)
+            if per > _AUTO_MAX_CANDIDATES:
+                self._g_avoid_until = self._frame + _AUTO_RETRY
+                self._g_avoid_reason = (
+                    f"the column sweep tested {per:.0f} candidates per box and pair in "
+                    f"frame {last['frame']} (above {_AUTO_MAX_CANDIDATES}): the paper's "
+                    f"sweep until frame {self._g_avoid_until}")
+                return "parallel", self._g_avoid_reason
+        reason = (f"{n} boxes of similar sizes (spread {spread:.1f}x, {geo['big']} in the big "
+                  "list): the column sweep")
+        if self._sap_disp:
+            d = max(self._sap_disp.values())
+            reason += f" (the paper's sort last had dispersion D = {d:.2f})"
+        return "columns", reason
+
+    # ------------------------------------------------------------ column path
+    def _geometry(self, lower, upper, threads):
+        """Sizes and spans of this frame's boxes (one parallel pass) and the
+        column grid they call for; see ``kernels/boxgrid.py``."""
+        n = lower.shape[0]
+        k = bg if threads > 1 else bg.serial
+        m = max(1, min(_MEASURE_CHUNKS, n // 8192))
+        if self._g_meas is None or self._g_meas[0].shape[0] != m:
+            self._g_meas = (np.empty((m, 3)), np.empty((m, 3)),
+                            np.empty((m, bg.NBUCKETS), np.int64),
+                            np.empty((m, bg.NBUCKETS, 3)))
+        cmin, cmax, hist, hext = self._g_meas
+        geo = {"n": n}
+        if n == 0:
+            geo.update(big_bucket=bg.NBUCKETS, big=0, spread=1.0, width=np.zeros(3),
+                       cmin=np.zeros(3), cmax=np.zeros(3), typical=0.0)
+            return geo
+        k.measure(lower, upper, cmin, cmax, hist, hext)
+        counts = hist.sum(axis=0)
+        nz = np.flatnonzero(counts)
+        counts = counts[nz]
+        ext = hext[:, nz].max(axis=0)
+        cum = np.cumsum(counts)
+        med = int(np.searchsorted(cum, (n + 1) // 2))
+        suffix = n - np.concatenate(([0], cum[:-1]))  # boxes in buckets nz[j:]
+        limit = n // _BIG_FRACTION
+        j_big = len(nz)
+        for j in range(med + 1, len(nz)):
+            if suffix[j] <= limit and nz[j] >= nz[med] + 2:
+                j_big = j
+                break
+        big_bucket = int(nz[j_big]) if j_big < len(nz) else bg.NBUCKETS
+        big = int(suffix[j_big]) if j_big < len(nz) else 0
+        width = ext[:j_big].max(axis=0) if j_big else np.zeros(3)
+        top = float(width.max())
+        typical = float(np.ldexp(1.0, int(nz[med]) - bg.OFFSET))  # above the median side
+        geo.update(big_bucket=big_bucket, big=big, width=width, typical=typical,
+                   spread=top / typical if typical > 0 and np.isfinite(top) else 1.0,
+                   cmin=cmin.min(axis=0), cmax=cmax.max(axis=0))
+        return geo
+
+    def _grid(self, geo):
+        """Column axes, sweep axis, origin, widths and counts of the grid."""
+        n_small = geo["n"] - geo["big"]
+        span = geo["cmax"] - geo["cmin"]
+        mag = np.maximum(np.abs(geo["cmin"]), np.abs(geo["cmax"]))
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            # the margin covers the rounding of centres and of the binning
+            w = geo["width"] * (1.0 + 1e-9) + 1e-12 * mag
+            bins = np.where((w > 0) & np.isfinite(span) & np.isfinite(w), span / w, 0.0) + 1.0
+        z = int(np.argmin(bins))
+        if self._g_z is not None and bins[self._g_z] <= 2.0 * bins[z]:
+            z = self._g_z  # hysteresis: keep the axis the kept order is sorted on
+        c0, c1 = (a for a in range(3) if a != z)
+        cap = max(1, n_small // _BOXES_PER_COLUMN)
+        ws = [0.0, 0.0]
+        nb = [1, 1]
+        for a, c in enumerate((c0, c1)):
+            s, wa = float(span[c]), float(w[c])
+            if not (np.isfinite(s) and s > 0) or wa == np.inf or not np.isfinite(s / max(
+                    wa, 1e-300)):
+                continue  # one column along this axis
+            # zero-size sides: pairs share the coordinate, any width will do
+            nb[a] = _MAX_SIDE if wa == 0.0 else int(min(s / wa, _MAX_SIDE))
+            nb[a] = max(nb[a], 1)
+            ws[a] = s / nb[a]  # columns tile the centres' span exactly, no narrower than wa
+            if ws[a] < wa:
+                ws[a] = wa
+        while nb[0] * nb[1] > cap:
+            f = float(np.sqrt(nb[0] * nb[1] / cap))
+            for a, c in enumerate((c0, c1)):
+                if nb[a] > 1:
+                    s = float(span[c])
+                    nb[a] = max(1, int(nb[a] / f))
+                    ws[a] = max(ws[a], s / nb[a])
+        inv = [0.0, 0.0]
+        for a in range(2):
+            if nb[a] > 1:
+                inv[a] = 1.0 / ws[a]
+                if not np.isfinite(inv[a]):
+                    nb[a], inv[a] = 1, 0.0
+        reach_z = float(geo["width"][z]) * (1.0 + 1e-9) + 1e-12 * float(mag[z])
+        return (c0, c1, z, float(geo["cmin"][c0]), float(geo["cmin"][c1]), inv[0], inv[1],
+                nb[0], nb[1], ws, reach_z)
+
+    def _update_columns(self, lower, upper, threads, t_start, geo):
+        n = lower.shape[0]
+        t0 = time.perf_counter()
+        k = bg if threads > 1 else bg.serial
+        if geo is None:
+            geo = self._geometry(lower, upper, threads)
+        stats = {"frame": self._frame, "n": n, "threads": threads, "path": "columns"}
+        if n < 2:
+            pairs = np.empty((0, 2), np.int64)
+            self._finish(stats, pairs, 0, {"sort": 0.0, "candidates": 0.0, "pairing": 0.0},
+                         {a: 0.0 for a in self._axes}, t_start)
+            return pairs
+        c0, c1, z, o0, o1, inv0, inv1, nb0, nb1, ws, reach_z = self._grid(geo)
+        ncol = nb0 * nb1
+        fresh = self._g_perm is None or self._g_perm.shape[0] != n
+        if fresh:
+            self._g_perm = np.arange(n, dtype=np.int64)
+            self._g_prev = np.empty(n, np.int64)
+            self._g_col = np.empty(n, np.int64)
+            self._g_soa = np.empty((6, n))
+            self._g_caps = None
+        fresh = fresh or self._g_z != z
+        self._g_z = z
+        chunks = max(1, min(_MEASURE_CHUNKS, n // 8192))
+        k.bin_boxes(lower, upper, c0, c1, o0, o1, inv0, inv1, nb0, nb1, geo["big_bucket"],
+                    chunks, self._g_col)
+        # counting sort by column over the previous frame's order
+        self._g_prev, self._g_perm = self._g_perm, self._g_prev
+        if self._g_start is None or self._g_start.shape[0] < ncol + 2:
+            self._g_start = np.empty(ncol + 2, np.int64)
+            self._g_chunks = np.empty(ncol + 2, np.int64)
+        start = self._g_start[:ncol + 2]
+        bg.counting_sort(self._g_col, self._g_prev, ncol + 1, start, self._g_perm)
+        perm = self._g_perm
+        nch = bg.column_chunks(start, ncol + 1, _CHUNK_BOXES, self._g_chunks)
+        sort_chunks = self._g_chunks[:nch + 1]
+        xl, xu, yl, yu, zl, zu = self._g_soa
+        k.sort_columns(sort_chunks, start, perm, lower, upper, c0, c1, z, fresh, xl, xu, yl,
+                       yu, zl, zu)
+        t1 = time.perf_counter()
+        sweep_chunks = np.minimum(sort_chunks, ncol)
+        big0 = int(start[ncol])
+        n_big = n - big0
+        big_chunks = np.arange(0, n_big + _BIG_CHUNK, _BIG_CHUNK, dtype=np.int64)
+        big_chunks[-1] = n_big
+        if n_big == 0:
+            big_chunks = np.zeros(1, np.int64)
+        # one region per chunk of columns, then per chunk of big boxes, sized
+        # from the last frame (temporal coherence)
+        rows = np.concatenate((np.diff(start[sweep_chunks]), np.diff(big_chunks)))
+        nreg = len(rows)
+        ratio = self._g_ratio or max(_LAST_PAIRS_PER_BOX[0], 2.0)
+        caps = (rows * (1.25 * ratio)).astype(np.int64) + 64
+        if self._g_caps is not None and len(self._g_caps) == nreg:
+            caps = np.maximum(self._g_caps, caps // 2)
+        need = np.zeros(nreg, np.int64)
+        tested = np.zeros(nreg, np.int64)
+        todo = np.ones(nreg, np.bool_)
+        reg = np.zeros(nreg, np.int64)
+        reg[1:] = np.cumsum(caps)[:-1]
+        end = int(caps.sum())
+        if self._g_out is None or self._g_out.shape[0] < 2 * end:
+            self._g_out = np.empty(2 * end + end // 4, np.int64)
+        ns = len(sweep_chunks) - 1
+        while True:
+            if todo[:ns].any():
+                k.sweep(sweep_chunks, start, nb0, nb1, xl, xu, yl, yu, zl, zu, perm,
+                        self._g_out, reg[:ns], caps[:ns], todo[:ns], need[:ns], tested[:ns])
+            if n_big and todo[ns:].any():
+                k.sweep_big(big_chunks, big0, start, nb0, nb1, o0, o1, inv0, inv1, reach_z,
+                            xl, xu, yl, yu, zl, zu, perm, self._g_out, reg[ns:], caps[ns:],
+                            todo[ns:], need[ns:], tested[ns:])
+            todo = need > caps
+            if not todo.any():
+                break
+            # overflowed regions move to the end of the buffer and run again
+            grown = need[todo] + need[todo] // 4 + 64
+            reg[todo] = end + np.concatenate(([0], np.cumsum(grown)[:-1]))
+            caps[todo] = grown
+            end += int(grown.sum())
+            if self._g_out.shape[0] < 2 * end:
+                old = self._g_out
+                self._g_out = np.empty(2 * end + end // 4, np.int64)
+                self._g_out[:old.shape[0]] = old
+        self._g_caps = caps
+        total = int(need.sum())
+        big_pairs = np.empty((0, 2), np.int64)
+        big_tested = 0
+        if n_big > 1:
+            ids = perm[big0:]
+            if self._g_big_engine is None:
+                self._g_big_engine = SweepAndPrune(path="parallel", n_threads=threads)
+            sub = self._g_big_engine
+            sub.n_threads = threads
+            bp = sub.update(lower[ids], upper[ids])
+            big_tested = sub.stats["candidates_tested"]
+            a, b = ids[bp[:, 0]], ids[bp[:, 1]]
+            big_pairs = np.stack((np.minimum(a, b), np.maximum(a, b)), axis=1)
+        pairs = np.empty((total + len(big_pairs), 2), np.int64)
+        k.assemble(self._g_out, reg, need, pairs)
+        pairs[total:] = big_pairs
+        t2 = time.perf_counter()
+        self._g_ratio = max(len(pairs) / n, 0.5)
+        _LAST_PAIRS_PER_BOX[0] = len(pairs) / n
+        stats.update(columns={"axes": (c0, c1), "sweep_axis": z, "grid": (nb0, nb1),
+                              "width": tuple(ws), "big": n_big, "chunks": ns,
+                              "big_bucket_side": float(np.ldexp(1.0, geo["big_bucket"] - 1
+                                                                - bg.OFFSET))
+                              if n_big else None,
+                              "spread": geo["spread"], "fresh": bool(fresh)})
+        # dispersion D (equation 1) of the small boxes over the grid's slabs along
+        # each column axis: how unevenly the columns fill
+        occ = np.diff(start[:ncol + 1]).reshape(nb0, nb1)
+        n_small = max(n - n_big, 1)
+        disp = {c0: float(np.abs(occ.sum(axis=1) - n_small / nb0).sum() / n_small),
+                c1: float(np.abs(occ.sum(axis=0) - n_small / nb1).sum() / n_small)}
+        self._finish(stats, pairs, int(tested.sum()) + big_tested,
+                     {"sort": t1 - t0, "candidates": 0.0, "pairing": t2 - t1}, disp, t_start,
+                     axes=(c0, c1))
         return pairs
 
     def _pair_parts(self, n, threads, nbins):
@@ -396,10 +705,11 @@ class SweepAndPrune:
                 new[p, :w] = out[p, :w]
         return new
 
-    def _finish(self, stats, pairs, tested, seconds, disp, t_start):
+    def _finish(self, stats, pairs, tested, seconds, disp, t_start, axes=None):
         seconds = dict(seconds)
         seconds["total"] = time.perf_counter() - t_start
-        stats.update(seconds=seconds, axes=tuple(self._axes), dispersion=disp,
+        axes = tuple(self._axes) if axes is None else axes
+        stats.update(seconds=seconds, axes=axes, dispersion=disp,
                      swaps=self._swaps, candidates_tested=int(tested), pairs=len(pairs))
         self.stats = stats
 

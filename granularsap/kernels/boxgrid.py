@@ -1,0 +1,467 @@
+"""Column sweep for axis-aligned boxes: the second path of ``SweepAndPrune``.
+
+About the algorithm
+-------------------
+Boxes are closed: ``i`` and ``j`` overlap iff ``lower_i <= upper_j`` and
+``lower_j <= upper_i`` on all three axes.
+
+*Sizes.*  One pass (``measure``) finds, per chunk of boxes, the span of the
+box centres on every axis and a histogram of ``r = `` the largest side of each
+box by binary exponent (``frexp``), with the largest side per axis of every
+exponent bucket.  The API picks from it a size limit (a power of two): boxes
+at or above it are *big* (at most a sixteenth of them, and only boxes at least
+twice the median size), the others *small*.  Big boxes go to a separate list,
+so a few large boxes do not fatten every column.
+
+*Columns.*  Two axes ``c0, c1`` are cut into ``nb0 x nb1`` columns of width
+``w_a >= `` the largest side of any small box on that axis (with a relative
+margin that covers rounding), and small boxes are binned by their centre.
+Two small boxes that overlap have centres at most ``(e_i + e_j) / 2 <= w_a``
+apart on axis ``a``, so they lie in the same column or in neighbouring ones
+(3 x 3 stencil).  The third axis ``z`` is the sweep axis.  Boxes are stored
+column by column, sorted inside each column by ``(lower_z, id)``, as a
+structure of arrays (``xl, xu, yl, yu, zl, zu, ids``: the column axes, then
+the sweep axis), so the sweep streams through contiguous memory.  The order
+is built by a stable counting sort by column over the previous frame's order,
+then an insertion sort inside each column, which temporal coherence keeps
+close to linear (a fresh order, or one that moved too much, falls back to a
+merge sort per column).  This is the multi-SaP of Tracy, Buss and Woods (2009)
+and Terdiman (2007): a one-axis Sweep and Prune inside each cell of a grid.
+
+*Sweep.*  Each pair is reported by the box that comes first in the total
+order ``(lower_z, id)``: box ``p`` scans, in its own column and in each of
+the 8 neighbouring columns, the boxes ``q`` after it in that order whose
+``lower_z <= upper_z(p)`` (every such ``q`` overlaps ``p`` on ``z``) and tests
+the two column axes.  Each unordered pair is found exactly once and nothing
+is de-duplicated.  A pointer per neighbouring column tracks the first box
+after ``p`` (it only moves forward as ``p`` walks its sorted column), so the
+window costs no search.  Compared with a half stencil in the plane (5 columns,
+window ``[lower_z - max side, upper_z]``), the forward rule scans 9 columns
+over a window of ``p``'s own side only: fewer candidates when sizes vary.
+
+*Big boxes.*  Each big box tests the small boxes of every column its
+footprint can reach (its extent plus one column) whose ``lower_z`` lies in
+``[lower_z(b) - max small side on z, upper_z(b)]`` (binary search, then a
+scan), with the full three-axis test; pairs of two big boxes are left to the
+caller (the API runs the paper's sweep on them).
+
+Cost: O(n) for measuring, binning, sorting and gathering; O(candidates) for
+the sweep, about ``9 w0 w1 rho e_z`` per box for uniform density ``rho``.
+Parallel work is cut into chunks of whole columns (or of big boxes) whose
+boundaries depend only on the input, never on the thread count; each chunk
+writes into its own region of the output (sized from the previous frame, and
+re-run alone when it overflows), so results do not depend on the thread count.
+"""
+
+from __future__ import annotations
+
+import math
+import types
+from types import SimpleNamespace
+
+import numba
+import numpy as np
+
+from .._numba import ijit, jit, pjit
+
+#: exponent buckets of the size histogram: 0 holds zero-size boxes, ``b``
+#: holds sides with ``frexp`` exponent ``b - OFFSET`` (``2**(e-1) <= r < 2**e``),
+#: the last one non-finite sides
+OFFSET = 1100
+NBUCKETS = 2 * OFFSET + 2
+
+
+@ijit
+def _bucket(r):
+    if r == 0.0:
+        return 0
+    if not r < np.inf:
+        return NBUCKETS - 1
+    e = math.frexp(r)[1]
+    b = e + OFFSET
+    if b < 1:
+        return 1
+    if b > NBUCKETS - 2:
+        return NBUCKETS - 2
+    return b
+
+
+@ijit
+def _side(lower, upper, i):
+    return max(upper[i, 0] - lower[i, 0], max(upper[i, 1] - lower[i, 1],
+                                              upper[i, 2] - lower[i, 2]))
+
+
+@pjit
+def measure(lower, upper, cmin, cmax, hist, hext):
+    """Per chunk ``c`` of boxes: centre span ``cmin[c], cmax[c]`` (3,), the
+    histogram ``hist[c]`` of size buckets and ``hext[c, b]`` the largest side
+    per axis of the boxes in bucket ``b``.  Chunk ``c`` covers boxes
+    ``[c n / m, (c + 1) n / m)`` for ``m = len(cmin)``."""
+    n = lower.shape[0]
+    m = cmin.shape[0]
+    for c in numba.prange(m):
+        lo = c * n // m
+        hi = (c + 1) * n // m
+        for b in range(NBUCKETS):
+            hist[c, b] = 0
+            for a in range(3):
+                hext[c, b, a] = 0.0
+        mn0 = np.inf
+        mn1 = np.inf
+        mn2 = np.inf
+        mx0 = -np.inf
+        mx1 = -np.inf
+        mx2 = -np.inf
+        for i in range(lo, hi):
+            x = 0.5 * lower[i, 0] + 0.5 * upper[i, 0]
+            y = 0.5 * lower[i, 1] + 0.5 * upper[i, 1]
+            z = 0.5 * lower[i, 2] + 0.5 * upper[i, 2]
+            mn0 = min(mn0, x)
+            mn1 = min(mn1, y)
+            mn2 = min(mn2, z)
+            mx0 = max(mx0, x)
+            mx1 = max(mx1, y)
+            mx2 = max(mx2, z)
+            e0 = upper[i, 0] - lower[i, 0]
+            e1 = upper[i, 1] - lower[i, 1]
+            e2 = upper[i, 2] - lower[i, 2]
+            b = _bucket(max(e0, max(e1, e2)))
+            hist[c, b] += 1
+            hext[c, b, 0] = max(hext[c, b, 0], e0)
+            hext[c, b, 1] = max(hext[c, b, 1], e1)
+            hext[c, b, 2] = max(hext[c, b, 2], e2)
+        cmin[c, 0] = mn0
+        cmin[c, 1] = mn1
+        cmin[c, 2] = mn2
+        cmax[c, 0] = mx0
+        cmax[c, 1] = mx1
+        cmax[c, 2] = mx2
+
+
+@ijit
+def _cell(v, o, inv_w, nb):
+    """Column coordinate of centre coordinate ``v``, clamped to ``[0, nb)``
+    (clamping keeps neighbours neighbours; NaN from inf - inf goes to 0)."""
+    t = (v - o) * inv_w
+    if not t >= 0.0:
+        return 0
+    if t >= nb:
+        return nb - 1
+    return min(np.int64(t), nb - 1)
+
+
+@pjit
+def bin_boxes(lower, upper, c0, c1, o0, o1, inv0, inv1, nb0, nb1, big_bucket, n_chunks,
+              col):
+    """Column of every box, ``nb0 * nb1`` for a big box (bucket >= ``big_bucket``)."""
+    n = lower.shape[0]
+    ncol = nb0 * nb1
+    for c in numba.prange(n_chunks):
+        for i in range(c * n // n_chunks, (c + 1) * n // n_chunks):
+            if _bucket(_side(lower, upper, i)) >= big_bucket:
+                col[i] = ncol
+                continue
+            x = 0.5 * lower[i, c0] + 0.5 * upper[i, c0]
+            y = 0.5 * lower[i, c1] + 0.5 * upper[i, c1]
+            col[i] = _cell(x, o0, inv0, nb0) * nb1 + _cell(y, o1, inv1, nb1)
+
+
+@jit
+def counting_sort(col, prev, nbins, start, perm):
+    """Stable counting sort of the order ``prev`` by ``col``; ``start`` (nbins + 1)."""
+    n = prev.shape[0]
+    for c in range(nbins + 1):
+        start[c] = 0
+    for i in range(n):
+        start[col[i] + 1] += 1
+    for c in range(nbins):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    for r in range(n):
+        i = prev[r]
+        c = col[i]
+        perm[fill[c]] = i
+        fill[c] += 1
+
+
+@jit
+def column_chunks(start, ncol, target, out):
+    """Cut columns ``[0, ncol)`` into chunks of about ``target`` boxes; writes the
+    boundaries into ``out`` and returns how many chunks there are.  Depends on
+    ``start`` only (never on the thread count)."""
+    k = 0
+    out[0] = 0
+    base = start[0]
+    for c in range(ncol):
+        if start[c + 1] - base >= target:
+            k += 1
+            out[k] = c + 1
+            base = start[c + 1]
+    if out[k] < ncol:
+        k += 1
+        out[k] = ncol
+    return k
+
+
+@ijit
+def _before(ka, ia, kb, ib):
+    """``(ka, ia) < (kb, ib)``: the sweep's total order (lower_z, then id)."""
+    return ka < kb or (ka == kb and ia < ib)
+
+
+@pjit
+def sort_columns(chunk_cols, start, perm, lower, upper, c0, c1, z, fresh, xl, xu, yl, yu, zl,
+                 zu):
+    """Sort every column of ``perm`` by ``(lower_z, id)`` and gather the boxes
+    into column order (``xl, xu``: axis ``c0``; ``yl, yu``: ``c1``; ``zl, zu``:
+    the sweep axis ``z``), one column at a time while its rows are in cache.
+
+    Insertion sort over the previous order (temporal coherence); a merge sort
+    of the column when ``fresh`` or when the insertion sort would move more
+    than a few times the column's length."""
+    n_chunks = chunk_cols.shape[0] - 1
+    for ch in numba.prange(n_chunks):
+        for c in range(chunk_cols[ch], chunk_cols[ch + 1]):
+            lo = start[c]
+            hi = start[c + 1]
+            for p in range(lo, hi):
+                zl[p] = lower[perm[p], z]
+            m = hi - lo
+            done = m < 2
+            if not fresh and not done:
+                budget = 8 * m + 64
+                moves = 0
+                done = True
+                for p in range(lo + 1, hi):
+                    v = perm[p]
+                    kv = zl[p]
+                    q = p - 1
+                    while q >= lo and _before(kv, v, zl[q], perm[q]):
+                        perm[q + 1] = perm[q]
+                        zl[q + 1] = zl[q]
+                        q -= 1
+                        moves += 1
+                    perm[q + 1] = v
+                    zl[q + 1] = kv
+                    if moves > budget:
+                        done = False
+                        break
+            if not done:
+                seg = np.sort(perm[lo:hi])  # ids ascending, then a stable sort by key
+                vals = np.empty(m, np.float64)
+                for p in range(m):
+                    vals[p] = lower[seg[p], z] + 0.0  # -0.0 sorts as +0.0
+                order = np.argsort(vals, kind="mergesort")
+                for p in range(m):
+                    perm[lo + p] = seg[order[p]]
+                    zl[lo + p] = vals[order[p]]
+            for p in range(lo, hi):
+                i = perm[p]
+                xl[p] = lower[i, c0]
+                xu[p] = upper[i, c0]
+                yl[p] = lower[i, c1]
+                yu[p] = upper[i, c1]
+                zu[p] = upper[i, z]
+
+
+@ijit
+def _first_after(zl, perm, lo, hi, k, i):
+    """First position in ``[lo, hi)`` whose ``(zl, id)`` comes after ``(k, i)``."""
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if _before(k, i, zl[mid], perm[mid]):
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+@jit
+def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, xl, xu, yl, yu, zl, zu, perm, out, base,
+                 cap):
+    """Pairs of the columns ``[c_lo, c_hi)``; writes at most ``cap`` pairs from
+    ``out[base]``; returns ``(pairs, candidates tested)``."""
+    pos = 0
+    tested = 0
+    ptr = np.empty(8, np.int64)
+    end = np.empty(8, np.int64)
+    for col in range(c_lo, c_hi):
+        lo_c = start[col]
+        hi_c = start[col + 1]
+        if lo_c == hi_c:
+            continue
+        b0 = col // nb1
+        b1 = col - b0 * nb1
+        n_live = 0
+        k0 = zl[lo_c]
+        i0 = perm[lo_c]
+        for d0 in range(-1, 2):
+            a0 = b0 + d0
+            if a0 < 0 or a0 >= nb0:
+                continue
+            for d1 in range(-1, 2):
+                a1 = b1 + d1
+                if (d0 == 0 and d1 == 0) or a1 < 0 or a1 >= nb1:
+                    continue
+                c2 = a0 * nb1 + a1
+                lo2 = start[c2]
+                hi2 = start[c2 + 1]
+                if lo2 == hi2:
+                    continue
+                ptr[n_live] = _first_after(zl, perm, lo2, hi2, k0, i0)
+                end[n_live] = hi2
+                n_live += 1
+        for p in range(lo_c, hi_c):
+            kz = zl[p]
+            ip = perm[p]
+            top = zu[p]
+            pxl = xl[p]
+            pxu = xu[p]
+            pyl = yl[p]
+            pyu = yu[p]
+            # own column: everything after p in order, while it starts below p's top
+            q = p + 1
+            while q < hi_c and zl[q] <= top:
+                tested += 1
+                ok = (xl[q] <= pxu) & (pxl <= xu[q]) & (yl[q] <= pyu) & (pyl <= yu[q])
+                if pos < cap:  # written whether kept or not: no unpredictable branch
+                    iq = perm[q]
+                    out[base + 2 * pos] = min(ip, iq)
+                    out[base + 2 * pos + 1] = max(ip, iq)
+                pos += np.int64(ok)
+                q += 1
+            for o in range(n_live):
+                q = ptr[o]
+                e = end[o]
+                while q < e and not _before(kz, ip, zl[q], perm[q]):
+                    q += 1
+                ptr[o] = q
+                while q < e and zl[q] <= top:
+                    tested += 1
+                    ok = (xl[q] <= pxu) & (pxl <= xu[q]) & (yl[q] <= pyu) & (pyl <= yu[q])
+                    if pos < cap:
+                        iq = perm[q]
+                        out[base + 2 * pos] = min(ip, iq)
+                        out[base + 2 * pos + 1] = max(ip, iq)
+                    pos += np.int64(ok)
+                    q += 1
+    return pos, tested
+
+
+@pjit
+def sweep(chunk_cols, start, nb0, nb1, xl, xu, yl, yu, zl, zu, perm, out, reg_start,
+          reg_cap, todo, need, tested):
+    """``_sweep_chunk`` for every chunk marked in ``todo``: chunk ``c`` writes pairs
+    ``(min id, max id)`` flat into ``out[reg_start[c]:]`` (at most ``reg_cap[c]``
+    of them) and ``need[c]`` receives how many it found."""
+    n_chunks = chunk_cols.shape[0] - 1
+    for c in numba.prange(n_chunks):
+        if not todo[c]:
+            continue
+        need[c], tested[c] = _sweep_chunk(chunk_cols[c], chunk_cols[c + 1], start, nb0, nb1,
+                                          xl, xu, yl, yu, zl, zu, perm, out, 2 * reg_start[c],
+                                          reg_cap[c])
+
+
+@jit
+def _lower_bound(arr, lo, hi, v):
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if arr[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@jit
+def _big_chunk(b_lo, b_hi, big0, start, nb0, nb1, o0, o1, inv0, inv1, reach_z, xl, xu, yl,
+               yu, zl, zu, perm, out, base, cap):
+    """Big boxes ``[b_lo, b_hi)`` (positions ``big0 + k`` of the column order)
+    against the small boxes of every column they can reach."""
+    pos = 0
+    tested = 0
+    for k in range(b_lo, b_hi):
+        b = big0 + k
+        ib = perm[b]
+        bxl = xl[b]
+        bxu = xu[b]
+        byl = yl[b]
+        byu = yu[b]
+        bzl = zl[b]
+        bzu = zu[b]
+        # a small box meeting b has its centre within half a column of b's extent
+        a0 = max(_cell(bxl, o0, inv0, nb0) - 1, 0)
+        a1 = min(_cell(bxu, o0, inv0, nb0) + 1, nb0 - 1)
+        s0 = max(_cell(byl, o1, inv1, nb1) - 1, 0)
+        s1 = min(_cell(byu, o1, inv1, nb1) + 1, nb1 - 1)
+        zfrom = bzl - reach_z
+        for c0 in range(a0, a1 + 1):
+            for c1 in range(s0, s1 + 1):
+                col = c0 * nb1 + c1
+                lo = start[col]
+                hi = start[col + 1]
+                if lo == hi:
+                    continue
+                q = _lower_bound(zl, lo, hi, zfrom)
+                while q < hi and zl[q] <= bzu:
+                    tested += 1
+                    ok = ((xl[q] <= bxu) & (bxl <= xu[q]) & (yl[q] <= byu) & (byl <= yu[q])
+                          & (bzl <= zu[q]))
+                    if pos < cap:
+                        iq = perm[q]
+                        out[base + 2 * pos] = min(ib, iq)
+                        out[base + 2 * pos + 1] = max(ib, iq)
+                    pos += np.int64(ok)
+                    q += 1
+    return pos, tested
+
+
+@pjit
+def sweep_big(chunk_big, big0, start, nb0, nb1, o0, o1, inv0, inv1, reach_z, xl, xu, yl, yu,
+              zl, zu, perm, out, reg_start, reg_cap, todo, need, tested):
+    """``_big_chunk`` for every chunk of big boxes marked in ``todo`` (regions as
+    in ``sweep``)."""
+    n_chunks = chunk_big.shape[0] - 1
+    for c in numba.prange(n_chunks):
+        if not todo[c]:
+            continue
+        need[c], tested[c] = _big_chunk(chunk_big[c], chunk_big[c + 1], big0, start, nb0, nb1,
+                                        o0, o1, inv0, inv1, reach_z, xl, xu, yl, yu, zl, zu,
+                                        perm, out, 2 * reg_start[c], reg_cap[c])
+
+
+@pjit
+def assemble(out, reg_start, need, pairs):
+    """Concatenate the regions' pairs into ``pairs`` (k, 2)."""
+    m = reg_start.shape[0]
+    starts = np.zeros(m + 1, np.int64)
+    for c in range(m):
+        starts[c + 1] = starts[c] + need[c]
+    for c in numba.prange(m):
+        s = starts[c]
+        b = 2 * reg_start[c]
+        for k in range(need[c]):
+            pairs[s + k, 0] = out[b + 2 * k]
+            pairs[s + k, 1] = out[b + 2 * k + 1]
+
+
+# ------------------------------------------------------------ serial twins
+
+
+def _twin(kernel):
+    """The serial build of a parallel kernel (``prange`` runs as ``range``): no
+    thread-pool launch per call, for small inputs and one thread.  A renamed
+    copy of the function, so that its compile cache is its own."""
+    f = kernel.py_func
+    g = types.FunctionType(f.__code__, f.__globals__, f.__name__ + "_serial", f.__defaults__,
+                           f.__closure__)
+    g.__qualname__ = f.__qualname__ + "_serial"
+    g.__doc__ = f.__doc__
+    return jit(g)
+
+
+#: the parallel kernels of this module, compiled serially (same names)
+serial = SimpleNamespace(**{name: _twin(globals()[name]) for name in (
+    "measure", "bin_boxes", "sort_columns", "sweep", "sweep_big", "assemble")})
