@@ -904,14 +904,16 @@ class NumbaCellList(Peer):
 
     Bins are at least the cutoff wide (contacts: the largest contact distance
     ``2 max(r)``, and the exact ``d <= r_i + r_j`` test in the kernel), with a
-    half stencil; periodic orthorhombic cells or open boundaries.
+    half stencil; periodic orthorhombic cells or open boundaries.  Boxes: the
+    contacts of the spheres around them (radius the half diagonal), then the
+    closed-box test.
     """
 
     name = "numba-celllist"
     module = "numba"
     dist = "numba"
     description = "plain numba half-stencil cell list (count + fill passes), buffers kept"
-    kinds = ("cutoff", "contacts")
+    kinds = ("cutoff", "contacts", "boxes")
     stateful = True
     threaded = True
 
@@ -927,6 +929,8 @@ class NumbaCellList(Peer):
 
         super().setup(workload, n_threads)
         self.cells = CellList(n_threads=n_threads)
+        if workload.kind == "boxes":  # half diagonals, widened past rounding
+            self._box_radii = np.linalg.norm(workload.half_extents, axis=1) * (1.0 + _WIDEN)
 
     def last_stats(self):
         return self.cells.stats
@@ -934,6 +938,9 @@ class NumbaCellList(Peer):
     def run(self, frame):
         wl = self.workload
         box = None if wl.box is None else wl.box[:3]
+        if wl.kind == "boxes":  # spheres around the boxes in contact, then the box test
+            pairs, _ = self.cells.compute(wl.frames[frame], radii=self._box_radii)
+            return exact_filter(wl, frame, pairs)
         if wl.kind == "contacts":
             pairs, _ = self.cells.compute(wl.frames[frame], radii=wl.radii, box=box)
         else:
