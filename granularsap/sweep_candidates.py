@@ -124,6 +124,10 @@ class SweepCandidates:
         depend on it.
     axes : "auto" or pair of axes
         Sweep axes of the :class:`~granularsap.SweepAndPrune`.
+    path : str
+        Algorithm path of the :class:`~granularsap.SweepAndPrune`; the default
+        ``"parallel"`` is the paper's parallel sweep (Algorithms 2-4),
+        ``"sequential"`` its Algorithm 1.  Results do not depend on it.
 
     Examples
     --------
@@ -136,9 +140,9 @@ class SweepCandidates:
     [(1, 0, (1, 0, 0))]
     """
 
-    def __init__(self, *, n_threads=None, axes="auto"):
+    def __init__(self, *, n_threads=None, axes="auto", path="parallel"):
         self.n_threads = check_n_threads(n_threads)
-        self._sap = SweepAndPrune(axes=axes, n_threads=self.n_threads)
+        self._sap = SweepAndPrune(axes=axes, n_threads=self.n_threads, path=path)
         self.stats = {}
 
     def build(self, ws, half, cell, pbc, self_images):
@@ -265,7 +269,7 @@ class SweepCandidates:
             "n": n, "ghosts": n_ghosts, "boxes": n + n_ghosts, "overlaps": n_overlaps,
             "candidates": int(total), "guard": guard,
             "sweep_candidates_tested": sap.get("candidates_tested"),
-            "axes": sap.get("axes"),
+            "axes": sap.get("axes"), "path": sap.get("path"),
             "seconds": {"ghosts": t1 - t0, "sweep": t2 - t1, "layout": t3 - t2,
                         "total": time.perf_counter() - t_start},
         }

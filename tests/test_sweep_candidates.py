@@ -342,6 +342,9 @@ def test_one_and_two_threads_give_the_same_list():
     b = sweep_candidates(ws, half, cell, np.ones(3, bool), True, n_threads=2)
     for u, v in zip(a, b, strict=True):
         assert np.array_equal(u, v)
+    c = SweepCandidates(path="sequential").build(ws, half, cell, np.ones(3, bool), True)
+    for u, v in zip(a, c, strict=True):
+        assert np.array_equal(u, v)
     check(ws[:120], half[:120], cell, np.ones(3, bool), True, n_threads=2)
 
 
