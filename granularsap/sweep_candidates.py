@@ -145,7 +145,7 @@ class SweepCandidates:
         self._sap = SweepAndPrune(axes=axes, n_threads=self.n_threads, path=path)
         self.stats = {}
 
-    def build(self, ws, half, cell, pbc, self_images):
+    def build(self, ws, half, cell, pbc, self_images, *, spheres=False):
         """Candidate images of one frame in the engine's Verlet layout.
 
         Parameters
@@ -162,6 +162,11 @@ class SweepCandidates:
             Periodic axes.
         self_images : bool
             Report a particle's own images ``(p, p, S)``, ``S != 0``.
+        spheres : bool, optional
+            Keep only the images whose spheres of radius ``half`` touch,
+            ``|D| <= half[p] + half[q]`` (up to the rounding guard), instead of
+            every pair of overlapping cubes: the test the column sweep's build
+            applies, about 1.9 (6 / pi) times fewer entries.
 
         Returns
         -------
@@ -175,7 +180,8 @@ class SweepCandidates:
             separation ``D = (ws[q] - ws[p]) + S @ cell``.
 
         Every image ``(p, q, S)`` with ``|D_c| <= half[p] + half[q]`` on every
-        axis is present exactly once, as ``(p, q, S)`` or ``(q, p, -S)``; rows
+        axis (with ``spheres``: with ``|D| <= half[p] + half[q]``) is present
+        exactly once, as ``(p, q, S)`` or ``(q, p, -S)``; rows
         hold ``S`` lexicographically positive, or ``S = 0`` and ``p < q``.
         Inside a row, entries are sorted by (partner, code).
         """
@@ -187,12 +193,15 @@ class SweepCandidates:
         if not isinstance(self_images, (bool, np.bool_)):
             raise TypeError(f"self_images must be True or False, got {self_images!r}")
         self_images = bool(self_images)
+        if not isinstance(spheres, (bool, np.bool_)):
+            raise TypeError(f"spheres must be True or False, got {spheres!r}")
         if n >= (1 << 31) - 1:
             raise ValueError(f"at most 2**31 - 2 particles are supported, got {n}")
         with num_threads(self.n_threads):
-            return self._build(ws, half, cell, hinv, pbc, self_images, n, t_start)
+            return self._build(ws, half, cell, hinv, pbc, self_images, bool(spheres), n,
+                               t_start)
 
-    def _build(self, ws, half, cell, hinv, pbc, self_images, n, t_start):
+    def _build(self, ws, half, cell, hinv, pbc, self_images, spheres, n, t_start):
         t0 = time.perf_counter()
         hmax = float(half.max()) if n else 0.0
         per = np.flatnonzero(pbc)
@@ -249,12 +258,13 @@ class SweepCandidates:
         n_overlaps = len(pairs)
         n_chunks = max(1, min(numba.get_num_threads(), n_overlaps // 65536))
         cnt = np.empty((n_chunks, n), np.int64)
-        gk.image_counts(pairs, n, owner, gcode, self_images, cnt, True)
+        sel = (self_images, spheres, ws, gpos, half, 2.0 * guard)
+        gk.image_counts(pairs, n, owner, gcode, *sel, cnt, True)
         qstart = np.empty(n, np.int64)
         qstop = np.empty(n, np.int64)
         total = gk.offsets(cnt, qstart, qstop)
         key = np.empty(total, np.int64)
-        gk.scatter_by_partner(pairs, n, owner, gcode, self_images, cnt, key)
+        gk.scatter_by_partner(pairs, n, owner, gcode, *sel, cnt, key)
         del pairs
         gk.row_counts(qstart, qstop, key, cnt)
         gk.offsets(cnt, vstart, vstop)
@@ -276,11 +286,12 @@ class SweepCandidates:
         return vstart, vstop, vb, vs
 
 
-def sweep_candidates(ws, half, cell, pbc, self_images, *, n_threads=None):
+def sweep_candidates(ws, half, cell, pbc, self_images, *, spheres=False, n_threads=None):
     """Candidate images of one frame by Sweep and Prune, in the engine's Verlet layout.
 
     One call of a fresh :class:`SweepCandidates`; see
     :meth:`SweepCandidates.build` for the arguments and the result
     ``(vstart, vstop, vb, vs)``.
     """
-    return SweepCandidates(n_threads=n_threads).build(ws, half, cell, pbc, self_images)
+    return SweepCandidates(n_threads=n_threads).build(ws, half, cell, pbc, self_images,
+                                                      spheres=spheres)

@@ -54,8 +54,9 @@ def _key(p, q, s):
     return min(a, b)
 
 
-def oracle(ws, half, cell, pbc, self_images, slack=0.0):
-    """Keys of every image with ``|D_c| <= (h_p + h_q) (1 + slack) + slack``."""
+def oracle(ws, half, cell, pbc, self_images, slack=0.0, spheres=False):
+    """Keys of every image with ``|D_c| <= (h_p + h_q) (1 + slack) + slack``
+    (with ``spheres``: ``|D| <= ...``)."""
     n = len(ws)
     cell = np.eye(3) if cell is None else np.asarray(cell, float)
     out = set()
@@ -69,7 +70,10 @@ def oracle(ws, half, cell, pbc, self_images, slack=0.0):
         d = diff + s[0] * cell[0]
         d = d + s[1] * cell[1]
         d = d + s[2] * cell[2]
-        ok = np.all(np.abs(d) <= thr[:, :, None], axis=2)
+        if spheres:
+            ok = np.sqrt(np.sum(d * d, axis=2)) <= thr
+        else:
+            ok = np.all(np.abs(d) <= thr[:, :, None], axis=2)
         if s == (0, 0, 0) or not self_images:
             ok[iu, iu] = False
         for p, q in zip(*np.nonzero(ok), strict=True):
@@ -93,12 +97,13 @@ def _positive(s):
     return False
 
 
-def check(ws, half, cell, pbc, self_images, n_threads=None):
+def check(ws, half, cell, pbc, self_images, n_threads=None, spheres=False):
     """Run the sweep and assert everything the contract promises; returns entries."""
     ws = np.asarray(ws, float)
     half = np.asarray(half, float)
     pbc = np.asarray(pbc, bool)
-    res = sweep_candidates(ws, half, cell, pbc, self_images, n_threads=n_threads)
+    res = sweep_candidates(ws, half, cell, pbc, self_images, n_threads=n_threads,
+                           spheres=spheres)
     vstart, vstop, vb, vs = res
     n = len(ws)
     assert vstart.dtype == np.int64 and vstop.dtype == np.int64
@@ -120,13 +125,13 @@ def check(ws, half, cell, pbc, self_images, n_threads=None):
             assert self_images
     keys = [_key(p, q, s) for p, q, s in got]
     assert len(set(keys)) == len(keys), "an image reported twice"
-    required = oracle(ws, half, cell, pbc, self_images)
+    required = oracle(ws, half, cell, pbc, self_images, spheres=spheres)
     missing = required - set(keys)
     assert not missing, f"required candidates missing: {sorted(missing)[:5]}"
     # extras only within the rounding guard (no ghost-ghost leftovers, no far pairs)
     scale = float(np.abs(ws).max()) + (float(np.abs(cell).max()) * 8 if cell is not None
                                        else 0.0) + 1.0
-    loose = oracle(ws, half, cell, pbc, self_images, slack=1e-9 * scale)
+    loose = oracle(ws, half, cell, pbc, self_images, slack=1e-9 * scale, spheres=spheres)
     far = set(keys) - loose
     assert not far, f"candidates that are not near-overlaps: {sorted(far)[:5]}"
     return got
@@ -202,13 +207,17 @@ def test_orthorhombic(self_images):
     assert any(s != (0, 0, 0) for _, _, s in got)
 
 
+@pytest.mark.parametrize("spheres", [False, True])
 @pytest.mark.parametrize("self_images", [False, True])
-def test_triclinic(self_images):
+def test_triclinic(self_images, spheres):
     rng = _rng(3)
     cell = np.array([[5.0, 0, 0], [2.1, 4.6, 0], [-1.3, 1.7, 4.4]])
     ws = _wrap(rng.random((50, 3)) @ cell, cell, True)
     half = rng.random(50) * 1.3
-    check(ws, half, cell, np.ones(3, bool), self_images)
+    got = check(ws, half, cell, np.ones(3, bool), self_images, spheres=spheres)
+    if spheres:  # fewer than the cubes, all of them among the cubes
+        cubes = check(ws, half, cell, np.ones(3, bool), self_images)
+        assert set(got) < set(cubes)
 
 
 def test_triclinic_cube_corners_beyond_the_sphere_reach():
@@ -248,6 +257,7 @@ def test_small_cell_several_layers_of_self_images():
     half = np.array([1.5, 0.2, 0.9, 1.1, 0.0, 1.4])
     got = check(ws, half, cell, np.ones(3, bool), True)
     assert max(max(abs(v) for v in s) for _, _, s in got) >= 3
+    check(ws, half, cell, np.ones(3, bool), True, spheres=True)
     assert any(p == q for p, q, _ in got)
     # one particle alone: only its own images
     got = check(ws[:1], half[:1], cell, np.ones(3, bool), True)
@@ -319,15 +329,16 @@ def dyadic_frames(draw):
     if draw(st.booleans()) and n > 1:  # duplicates
         x[1] = x[0]
     self_images = draw(st.booleans())
-    return x, half, cell, pbc, self_images
+    spheres = draw(st.booleans())
+    return x, half, cell, pbc, self_images, spheres
 
 
 @settings(max_examples=60, deadline=None)
 @given(dyadic_frames())
 def test_dyadic_ties_and_degenerate_frames(frame):
-    x, half, cell, pbc, self_images = frame
+    x, half, cell, pbc, self_images, spheres = frame
     ws = Cell(cell, pbc).wrap(x) if pbc.any() else x
-    check(ws, half, cell if pbc.any() else None, pbc, self_images)
+    check(ws, half, cell if pbc.any() else None, pbc, self_images, spheres=spheres)
 
 
 # ------------------------------------------------------------ threads, state
@@ -363,7 +374,8 @@ def test_stateful_frames_and_stats():
         assert sc.stats["boxes"] == n + sc.stats["ghosts"]
 
 
-def test_feeds_the_engines_narrow_phase():
+@pytest.mark.parametrize("spheres", [False, True])
+def test_feeds_the_engines_narrow_phase(spheres):
     """Distances tested on the candidates give NeighborSearch's pairs with every
     image (the engine's own column sweep)."""
     rng = _rng(9)
@@ -371,7 +383,7 @@ def test_feeds_the_engines_narrow_phase():
     ws = _wrap(rng.random((70, 3)) @ cell, cell, True)
     cutoff = 2.3
     vstart, vstop, vb, vs = sweep_candidates(ws, np.full(70, cutoff / 2), cell,
-                                             np.ones(3, bool), True)
+                                             np.ones(3, bool), True, spheres=spheres)
     mine = set()
     for p, q, s in entries((vstart, vstop, vb, vs)):
         d = ws[q] - ws[p]
@@ -408,6 +420,8 @@ def test_bad_input():
         sweep_candidates(ws, np.zeros(3), cell, [1, 1, 1], False)
     with pytest.raises(TypeError, match="self_images"):
         sweep_candidates(ws, np.zeros(3), cell, pbc, 1)
+    with pytest.raises(TypeError, match="spheres"):
+        sweep_candidates(ws, np.zeros(3), cell, pbc, True, spheres=None)
     with pytest.raises(ValueError, match="lattice shifts"):
         sweep_candidates(ws, np.full(3, 400.0), cell, pbc, True)
 
@@ -451,8 +465,51 @@ def test_rounding_ties_are_kept(seed):
             partner[i, c] = y
     ws = np.concatenate([base, partner])
     got = check(ws, half, cell, np.ones(3, bool), False)
+    check(ws, half, cell, np.ones(3, bool), False, spheres=True)
     keys = {_key(p, q, s) for p, q, s in got}
     for i in range(n):
         s = tuple(int(v) for v in shifts[i])
         assert _key(i, n + i, s) in keys
     assert (np.abs(shifts).sum(axis=1) > 0).sum() >= 3 * n // 4
+
+
+def _spec_norm(wq, wp, s, cell):
+    return np.sqrt(sum(_spec_component(wq[c], wp[c], s, cell, c) ** 2 for c in range(3)))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_rounding_ties_are_kept_with_spheres(seed):
+    """Partners at the last float64 for which |D| <= h_p + h_q still holds,
+    along one axis across a face: ``spheres=True`` keeps them all."""
+    rng = _rng(200 + seed)
+    cell = np.array([[1000.3, 0, 0], [101.7, 998.1, 0], [-57.3, 83.9, 1003.7]])
+    n = 40
+    frac = rng.random((n, 3)) * 4e-4 + rng.choice([0.0, 1.0 - 4e-4], size=(n, 3))
+    base = _wrap(frac @ cell, cell, True)
+    half = rng.random(2 * n) * 0.37 + 0.1
+    axis = rng.integers(0, 3, n)
+    sign = np.where(frac[np.arange(n), axis] > 0.5, 1.0, -1.0)
+    thr = half[:n] + half[n:]
+    step = np.zeros((n, 3))
+    step[np.arange(n), axis] = sign * thr
+    partner, shifts = Cell(cell, True).wrap(base + step, return_shifts=True)
+    for i in range(n):
+        c, sgn = axis[i], sign[i]
+        y = partner[i].copy()
+        for _ in range(200):
+            if _spec_norm(y, base[i], shifts[i], cell) <= thr[i]:
+                break
+            y[c] = np.nextafter(y[c], -sgn * np.inf)
+        for _ in range(200):
+            z = y.copy()
+            z[c] = np.nextafter(y[c], sgn * np.inf)
+            if _spec_norm(z, base[i], shifts[i], cell) > thr[i]:
+                break
+            y = z
+        partner[i] = y
+    ws = np.concatenate([base, partner])
+    got = check(ws, half, cell, np.ones(3, bool), False, spheres=True)
+    keys = {_key(p, q, s) for p, q, s in got}
+    for i in range(n):
+        assert _key(i, n + i, tuple(int(v) for v in shifts[i])) in keys
+    assert (np.abs(shifts).sum(axis=1) > 0).sum() >= n // 2

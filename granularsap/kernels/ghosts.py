@@ -155,19 +155,35 @@ def boxes(ws, half, gpos, owner, guard, lower, upper):
 
 
 @ijit
-def _image(pairs, t, n, owner, gcode, self_images):
-    """Row, partner and code of box pair ``t`` (row -1: not reported)."""
+def _image(pairs, t, n, owner, gcode, self_images, spheres, ws, gpos, half, guard2):
+    """Row, partner and code of box pair ``t`` (row -1: not reported).
+
+    With ``spheres``, only pairs whose spheres of radius ``half`` (plus the
+    guard ``guard2``, twice the cube guard) touch are reported."""
     i = pairs[t, 0]
     j = pairs[t, 1]
-    if j < n:  # two real boxes (i < j)
-        return i, j, np.int64(ZERO)
     if i >= n:  # two ghosts: the same image is a real-ghost pair
         return np.int64(-1), np.int64(0), np.int64(0)
-    k = j - n
-    q = owner[k]
-    if q == i and not self_images:
-        return np.int64(-1), np.int64(0), np.int64(0)
-    return i, q, np.int64(gcode[k])
+    if j < n:  # two real boxes (i < j)
+        q = j
+        c = np.int64(ZERO)
+        dx = ws[j, 0] - ws[i, 0]
+        dy = ws[j, 1] - ws[i, 1]
+        dz = ws[j, 2] - ws[i, 2]
+    else:
+        k = j - n
+        q = owner[k]
+        if q == i and not self_images:
+            return np.int64(-1), np.int64(0), np.int64(0)
+        c = np.int64(gcode[k])
+        dx = gpos[k, 0] - ws[i, 0]
+        dy = gpos[k, 1] - ws[i, 1]
+        dz = gpos[k, 2] - ws[i, 2]
+    if spheres:
+        thr = half[i] + half[q] + guard2
+        if not dx * dx + dy * dy + dz * dz <= thr * thr * (1.0 + 1e-12):
+            return np.int64(-1), np.int64(0), np.int64(0)
+    return i, q, c
 
 
 @ijit
@@ -176,7 +192,8 @@ def _chunk(k, n_chunks, ch):
 
 
 @pjit
-def image_counts(pairs, n, owner, gcode, self_images, cnt, by_partner):
+def image_counts(pairs, n, owner, gcode, self_images, spheres, ws, gpos, half, guard2, cnt,
+                 by_partner):
     """``cnt[ch, x]``: images among chunk ``ch`` of the box pairs with row
     ``x`` (or, with ``by_partner``, partner ``x``)."""
     n_chunks = cnt.shape[0]
@@ -186,7 +203,8 @@ def image_counts(pairs, n, owner, gcode, self_images, cnt, by_partner):
             cnt[ch, x] = 0
         lo, hi = _chunk(k, n_chunks, ch)
         for t in range(lo, hi):
-            p, q, c = _image(pairs, t, n, owner, gcode, self_images)
+            p, q, c = _image(pairs, t, n, owner, gcode, self_images, spheres, ws, gpos, half,
+                             guard2)
             if p >= 0:
                 cnt[ch, q if by_partner else p] += 1
 
@@ -218,14 +236,16 @@ def offsets(cnt, start, stop):
 
 
 @pjit
-def scatter_by_partner(pairs, n, owner, gcode, self_images, cnt, key):
+def scatter_by_partner(pairs, n, owner, gcode, self_images, spheres, ws, gpos, half, guard2,
+                       cnt, key):
     """Every image into the bucket of its partner ``q``, as ``p << 32 | code``."""
     n_chunks = cnt.shape[0]
     k = pairs.shape[0]
     for ch in numba.prange(n_chunks):
         lo, hi = _chunk(k, n_chunks, ch)
         for t in range(lo, hi):
-            p, q, c = _image(pairs, t, n, owner, gcode, self_images)
+            p, q, c = _image(pairs, t, n, owner, gcode, self_images, spheres, ws, gpos, half,
+                             guard2)
             if p >= 0:
                 e = cnt[ch, q]
                 key[e] = (p << 32) | c
