@@ -68,6 +68,23 @@ def _check_quantities(quantities):
     return quantities
 
 
+def _square_bound(thr, strict):
+    """Largest double ``x2`` with ``sqrt(x2) <= thr`` (``< thr`` if strict), rounded
+    square roots: ``d2 <= x2`` is then exactly the test on ``d = sqrt(d2)``."""
+    def ok(v):
+        d = math.sqrt(v)
+        return d < thr or (not strict and d == thr)
+
+    if thr < 0 or (strict and thr == 0):
+        return -1.0
+    x2 = thr * thr
+    while not ok(x2):
+        x2 = math.nextafter(x2, -math.inf)
+    while math.isfinite(up := math.nextafter(x2, math.inf)) and ok(up):
+        x2 = up
+    return x2
+
+
 def _resolve_cell(box, pbc):
     """(cell matrix, pbc) of ``box`` and ``pbc``: the Cell's full matrix (zero rows of
     open axes completed), or None for open boundaries."""
@@ -109,8 +126,11 @@ class _Search:
         self._out_cap = 0
         self._perm = None
         self._vcap = None
-        #: columns per pair range (2: columns half the range wide, two-layer stencil)
+        #: columns per pair range of a Verlet build (2: columns half the range wide,
+        #: two-layer stencil) and of a direct frame (1: the stencil's runs are longer,
+        #: which costs less than the candidates they add)
         self._split = 2
+        self._split_direct = 1
 
     # ------------------------------------------------------------- buffers
     def _alloc_particles(self, n):
@@ -244,12 +264,13 @@ class _Search:
                 reason = f"a particle moved {max_disp:.6g} > rebuild_margin / 2"
         times["wrap"] = time.perf_counter() - t0
         tested = None
+        self._direct_done = False
         if reason is not None:
             tested = self._build(positions, rad, skin, cell_k, hinv, diag, pbc, labels,
                                  n, rmax, reach_max, minimum, key, times)
             self._rebuilds += 1
         t0 = time.perf_counter()
-        total = self._narrow(skin, cell_k)
+        total = self._direct_total if self._direct_done else self._narrow(skin, cell_k)
         if (cell is not None and minimum and total
                 and 2.0 * reach_max >= periodic.perpendicular_widths(cell_k)[pbc].min()
                 * (1.0 - 1e-9)):
@@ -305,15 +326,16 @@ class _Search:
                 span[c] = t[:, c].max() - lo[c]
         delta = bin_range / widths
         nb = [1, 1]
+        split = self._split_direct if self._margin == 0.0 else self._split
         for c in range(2):
             if span[c] > 0:
                 with np.errstate(over="ignore", divide="ignore"):
-                    ratio = (self._split * span[c] / delta[c] if delta[c] > 0
+                    ratio = (split * span[c] / delta[c] if delta[c] > 0
                              else math.inf)
                 nb[c] = int(max(1.0, math.floor(min(ratio, float(_MAX_BINS)))))
-        if self._split > 1 and n < 4 * nb[0] * nb[1]:
+        if split > 1 and n < 4 * nb[0] * nb[1]:
             # sparse: columns of one range hold few particles already
-            nb = [max(1, v // self._split) for v in nb]
+            nb = [max(1, v // split) for v in nb]
         while nb[0] * nb[1] > max(1, n) and max(nb) > 1:
             c = 0 if nb[0] >= nb[1] else 1
             nb[c] = max(1, nb[c] // 2)
@@ -362,6 +384,16 @@ class _Search:
         chunk_cols = np.unique(np.concatenate([[0], cuts, [ncol]])).astype(np.int64)
         n_chunks = len(chunk_cols) - 1
         self._chunk_rows = start[chunk_cols]
+        inv_w2 = 1.0 / widths[2]
+        tz = np.ascontiguousarray(self._ts[:, 2])
+        if self._margin == 0.0:
+            ws = self._ws
+            geometry = (chunk_cols, start, nb0, nb1, pbc, tz, np.ascontiguousarray(ws[:, 0]),
+                        np.ascontiguousarray(ws[:, 1]), np.ascontiguousarray(ws[:, 2]),
+                        self._rs, self._ls, use_label, cell)
+            times["build"] = 0.0
+            return self._direct(geometry, diag, stencil, rmax, reach, inv_w2, minimum, skin,
+                                rad, times)
         rows = np.diff(self._chunk_rows)
         if self._vcap is None or len(self._vcap) != n_chunks:
             if self._vcap is None:
@@ -382,8 +414,6 @@ class _Search:
         need = np.zeros(n_chunks, np.int64)
         tested = np.zeros(n_chunks, np.int64)
         todo = np.ones(n_chunks, np.bool_)
-        inv_w2 = 1.0 / widths[2]
-        tz = np.ascontiguousarray(self._ts[:, 2])
         while True:
             reg_start = np.zeros(n_chunks, np.int64)
             reg_start[1:] = np.cumsum(cap)[:-1]
@@ -408,6 +438,66 @@ class _Search:
         self._vcap = cap
         self._vneed = need
         times["build"] = time.perf_counter() - t1
+        return int(tested.sum())
+
+    def _direct(self, geometry, diag, stencil, rmax, reach, inv_w2, minimum, skin, rad,
+                times):
+        """A frame without a rebuild margin: pairs straight from the column sweep.
+
+        Pass 1 tests every candidate and keeps the outcomes as bit masks (one
+        64-bit word per run of up to 64 candidates, in regions per chunk sized
+        from the last frame; a chunk that needs more is counted again), pass 2
+        writes the pairs whose bits are set into the output buffers.  No
+        Verlet list is kept."""
+        t0 = time.perf_counter()
+        n_chunks = len(geometry[0]) - 1
+        self._direct_done = True
+        self._vneed = np.zeros(0, np.int64)
+        self._vcap = None
+        strict = not self.include_cutoff
+        uniform = bool(rad.min() == rad.max())
+        thr = float(rad[0]) + float(rad[0]) + skin if uniform else 0.0
+        x2 = _square_bound(thr, strict) if uniform else 0.0
+        q = self.quantities
+        counts = np.zeros(n_chunks, np.int64)
+        tested = np.zeros(n_chunks, np.int64)
+        offsets = np.zeros(n_chunks, np.int64)
+        wneed = np.zeros(n_chunks, np.int64)
+        rows = np.diff(self._chunk_rows)
+        wcap = getattr(self, "_wcap", None)
+        if wcap is None or len(wcap) != n_chunks:
+            wcap = rows * (2 * len(stencil) + 4) + 64
+        todo = np.ones(n_chunks, np.bool_)
+        settings = (diag, stencil, rmax, reach, inv_w2, not minimum, skin, strict, uniform,
+                    x2, self._perm, self._ks, "d" in q, "D" in q, "S" in q)
+        self._alloc_output(0)
+        outputs = (self._out_p, self._out_d, self._out_v, self._out_s)
+        while True:
+            wstart = np.zeros(n_chunks, np.int64)
+            wstart[1:] = np.cumsum(wcap)[:-1]
+            size = int(wcap.sum())
+            words = getattr(self, "_words", None)
+            if words is None or len(words) < size:
+                words = self._words = np.empty(size + size // 8, np.uint64)
+                todo[:] = True
+            self._kern.direct(False, *geometry, *settings, offsets, counts, tested, *outputs,
+                              words, wstart, wcap, wneed, todo)
+            over = wneed > wcap
+            if not over.any():
+                break
+            wcap = np.where(over, wneed + wneed // 8 + 64, wcap)
+            todo = over
+        self._wcap = np.maximum(wcap, wneed + wneed // 8 + 64)
+        offsets[1:] = np.cumsum(counts)[:-1]
+        total = int(counts.sum())
+        t1 = time.perf_counter()
+        self._alloc_output(total)
+        outputs = (self._out_p, self._out_d, self._out_v, self._out_s)
+        self._kern.direct(True, *geometry, *settings, offsets, counts, tested, *outputs,
+                          words, wstart, wcap, wneed, todo)
+        self._direct_total = total
+        times["count"] = t1 - t0
+        times["fill"] = time.perf_counter() - t1
         return int(tested.sum())
 
     def _compact(self, need, reg_start):

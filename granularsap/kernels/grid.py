@@ -71,6 +71,7 @@ import numba
 import numpy as np
 
 from .._numba import ijit, jit, pjit
+from .bits import cttz
 
 #: fractional coordinates at or beyond this magnitude cannot be wrapped
 #: meaningfully (the wrapped value keeps no significant bits)
@@ -481,6 +482,236 @@ def build(chunk_cols, start, nb0, nb1, pbc, tz, ws, rs, ls, use_label, cell, ste
             vs, reg_start[c], reg_cap[c])
 
 
+# ------------------------------------------------------------ direct frames
+
+
+@ijit
+def _hit(d2, thr, strict, uniform, x2):
+    """The exact test ``d <= thr`` (``d < thr`` if strict) with ``d = sqrt(d2)``;
+    with one threshold for every pair (``uniform``) it is ``d2 <= x2``, ``x2`` the
+    largest double whose rounded square root passes (the same answer, no sqrt)."""
+    if uniform:
+        return d2 <= x2
+    d = math.sqrt(d2)
+    return (d < thr) | ((not strict) & (d == thr))
+
+
+@ijit
+def _pair_test(q, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az, bx, by, bz, cx, cy, cz,
+               xp, yp, zp, rp, lp, self_images, skin, strict, uniform, x2):
+    """Separation of ``p`` to ``q`` seen through one lattice shift (``ax..cz`` its
+    terms, added in ``_separation``'s order) and the exact test; (ok, d2, dx, dy, dz)."""
+    if diag:  # the other terms of _separation's sum are zeros: no square changes
+        dx = (xs[q] - xp) + ax
+        dy = (ys[q] - yp) + by
+        dz = (zs[q] - zp) + cz
+    else:
+        dx = (((xs[q] - xp) + ax) + bx) + cx
+        dy = (((ys[q] - yp) + ay) + by) + cy
+        dz = (((zs[q] - zp) + az) + bz) + cz
+    d2 = dx * dx + dy * dy + dz * dz
+    if uniform:
+        ok = d2 <= x2
+    else:
+        ok = _hit(d2, rp + rs[q] + skin, strict, False, x2)
+    ok = ok & ((p != q) | self_images)
+    if use_label:
+        ok = ok & (lp != ls[q])
+    return ok, d2, dx, dy, dz
+
+
+@jit
+def _sweep_chunk(fill, c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label,
+                 cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform,
+                 x2, perm, kw, want_d, want_vec, want_shift, o, out_p, out_d, out_v, out_s,
+                 words, wbase, wcap):
+    """Pass 1 (``fill`` False): test every candidate of the columns ``[c_lo, c_hi)``
+    and keep the outcome as bit masks, one 64-bit word per run of up to 64
+    candidates, in ``words[wbase:wbase + wcap]``; returns (pairs, candidates,
+    words needed).  Pass 2 walks the same runs and writes only the pairs whose
+    bits are set, from slot ``o``.
+
+    The sweep of ``_build_chunk`` with the loops turned inside out: for each
+    column of the stencil, two pointers walk it while ``p`` walks its own
+    sorted column (Algorithm 1's sweep of one sorted list against another):
+    ``(q, k)`` is the first element of the periodic sequence ``tz + k`` at or
+    above ``tz[p] - dmax`` and ``(qh, kh)`` the first above the upper end of
+    ``p``'s window; both only grow with ``p`` (the upper one is searched per
+    ``p`` when ranges differ).  Between them lie runs of one lattice shift,
+    each a counted loop over contiguous arrays without a branch in its body.
+    """
+    cnt = 0
+    tested = 0
+    w = 0
+    p2 = pbc[2]
+    n_st = stencil.shape[0]
+    dmax = (2.0 * rmax + reach) * inv_w2
+    for col in range(c_lo, c_hi):
+        lo_c = start[col]
+        hi_c = start[col + 1]
+        if lo_c == hi_c:
+            continue
+        b0 = col // nb1
+        b1 = col - b0 * nb1
+        for o_st in range(-1, n_st):
+            own = o_st < 0  # the column itself: forward in sorted order
+            s0 = 0
+            s1 = 0
+            if own:
+                col2 = col
+            else:
+                c0 = b0 + stencil[o_st, 0]
+                c1 = b1 + stencil[o_st, 1]
+                if pbc[0]:
+                    s0 = c0 // nb0
+                    c0 -= s0 * nb0
+                elif c0 < 0 or c0 >= nb0:
+                    continue
+                if pbc[1]:
+                    s1 = c1 // nb1
+                    c1 -= s1 * nb1
+                elif c1 < 0 or c1 >= nb1:
+                    continue
+                col2 = c0 * nb1 + c1
+            lo2 = start[col2]
+            hi2 = start[col2 + 1]
+            if lo2 == hi2:
+                continue
+            ax = s0 * cell[0, 0]
+            ay = s0 * cell[0, 1]
+            az = s0 * cell[0, 2]
+            bx = s1 * cell[1, 0]
+            by = s1 * cell[1, 1]
+            bz = s1 * cell[1, 2]
+            q = lo2
+            k = 0
+            kf = 0.0
+            if not own:
+                first = tz[lo_c] - dmax
+                k = int(math.floor(first)) - 1 if p2 else 0
+                q = _lower_bound(tz, lo2, hi2, first - k)
+                if q == hi2:
+                    if not p2:
+                        continue
+                    q = lo2
+                    k += 1
+                kf = float(k)
+            qh = q
+            kh = k
+            khf = kf
+            for p in range(lo_c, hi_c):
+                tp = tz[p]
+                hi_v = tp + (rs[p] + rmax + reach) * inv_w2
+                if own:
+                    q = p + 1
+                    k = 0
+                    kf = 0.0
+                    if q == hi_c:
+                        if not p2:
+                            continue
+                        q = lo_c
+                        k = 1
+                        kf = 1.0
+                else:
+                    if q >= hi2:  # open sweep axis: exhausted
+                        break
+                    lo_v = tp - dmax
+                    while tz[q] + kf < lo_v:
+                        q, k, kf = _step(q, k, kf, lo2, hi2, p2)
+                        if q == hi2:
+                            break
+                    if q >= hi2:
+                        break
+                # the upper end of p's window: never behind the lower one
+                if (not uniform) or kh < k or (kh == k and qh < q):
+                    qh = q
+                    kh = k
+                    khf = kf
+                while qh < hi2 and tz[qh] + khf <= hi_v:
+                    qh, kh, khf = _step(qh, kh, khf, lo2, hi2, p2)
+                xp = xs[p]
+                yp = ys[p]
+                zp = zs[p]
+                rp = rs[p]
+                lp = ls[p] if use_label else 0
+                ip = perm[p]
+                # runs of one shift: (q, k) .. (hi2, k), (lo2, k + 1) .. , .. (qh, kh)
+                qa = q
+                ka = k
+                while ka < kh or (ka == kh and qa < qh):
+                    qb = hi2 if ka < kh else qh
+                    cx = ka * cell[2, 0]
+                    cy = ka * cell[2, 1]
+                    cz = ka * cell[2, 2]
+                    tested += qb - qa
+                    for base in range(qa, qb, 64):
+                        top = min(base + 64, qb)
+                        if not fill:
+                            word = np.uint64(0)
+                            for q2 in range(base, top):
+                                ok, d2, dx, dy, dz = _pair_test(
+                                    q2, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az,
+                                    bx, by, bz, cx, cy, cz, xp, yp, zp, rp, lp, self_images,
+                                    skin, strict, uniform, x2)
+                                word |= np.uint64(ok) << np.uint64(q2 - base)
+                                cnt += np.int64(ok)
+                            if w < wcap:
+                                words[wbase + w] = word
+                            w += 1
+                            continue
+                        word = words[wbase + w]
+                        w += 1
+                        while word:
+                            q2 = base + np.int64(cttz(word))
+                            word &= word - np.uint64(1)
+                            ok, d2, dx, dy, dz = _pair_test(
+                                q2, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az, bx,
+                                by, bz, cx, cy, cz, xp, yp, zp, rp, lp, self_images, skin,
+                                strict, uniform, x2)
+                            iq = perm[q2]
+                            flip = iq < ip
+                            out_p[o, 0] = min(ip, iq)
+                            out_p[o, 1] = max(ip, iq)
+                            if want_d:
+                                out_d[o] = math.sqrt(d2)
+                            if want_vec:
+                                _store3(out_v, o, dx, dy, dz, flip)
+                            if want_shift:
+                                _store3(out_s, o, s0 - kw[q2, 0] + kw[p, 0],
+                                        s1 - kw[q2, 1] + kw[p, 1], ka - kw[q2, 2] + kw[p, 2],
+                                        flip)
+                            o += 1
+                            cnt += 1
+                    qa = lo2
+                    ka += 1
+    return cnt, tested, w
+
+
+@pjit
+def direct(fill, chunk_cols, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell, diag,
+           stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform, x2, perm, kw,
+           want_d, want_vec, want_shift, offsets, counts, tested, out_p, out_d, out_v, out_s,
+           words, wstart, wcap, wneed, todo):
+    """Pairs in range of this frame straight from the column sweep (no Verlet
+    list).  Pass 1 (``fill`` False) counts each chunk marked in ``todo`` into
+    ``counts`` and its mask words into ``wneed`` (kept when they fit ``wcap``);
+    pass 2 writes chunk ``c``'s pairs from ``offsets[c]``, rows as
+    ``narrow_fill``'s."""
+    n_chunks = chunk_cols.shape[0] - 1
+    for c in numba.prange(n_chunks):
+        if not fill and not todo[c]:
+            continue
+        cnt, tst, w = _sweep_chunk(
+            fill, chunk_cols[c], chunk_cols[c + 1], start, nb0, nb1, pbc, tz, xs, ys, zs, rs,
+            ls, use_label, cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict,
+            uniform, x2, perm, kw, want_d, want_vec, want_shift, offsets[c], out_p, out_d,
+            out_v, out_s, words, wstart[c], wcap[c])
+        if not fill:
+            counts[c] = cnt
+            tested[c] = tst
+            wneed[c] = w
+
+
 # ------------------------------------------------------------ Verlet frames
 
 
@@ -606,4 +837,5 @@ def _twin(kernel):
 
 #: the parallel kernels of this module, compiled serially (same names)
 serial = SimpleNamespace(**{name: _twin(globals()[name]) for name in (
-    "wrap", "wrap_sorted", "sort_columns", "gather", "build", "narrow_count", "narrow_fill")})
+    "wrap", "wrap_sorted", "sort_columns", "gather", "build", "direct", "narrow_count",
+    "narrow_fill")})
