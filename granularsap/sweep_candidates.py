@@ -145,7 +145,7 @@ class SweepCandidates:
         self._sap = SweepAndPrune(axes=axes, n_threads=self.n_threads, path=path)
         self.stats = {}
 
-    def build(self, ws, half, cell, pbc, self_images, *, spheres=False):
+    def build(self, ws, half, cell, pbc, self_images, *, spheres=False, labels=None):
         """Candidate images of one frame in the engine's Verlet layout.
 
         Parameters
@@ -167,6 +167,10 @@ class SweepCandidates:
             ``|D| <= half[p] + half[q]`` (up to the rounding guard), instead of
             every pair of overlapping cubes: the test the column sweep's build
             applies, about 1.9 (6 / pi) times fewer entries.
+        labels : (n,) array_like of int, optional
+            Rigid-body labels: images of two particles with equal labels (a
+            particle's own images included) are not reported, as in the
+            column sweep's build with clump ids.
 
         Returns
         -------
@@ -195,13 +199,24 @@ class SweepCandidates:
         self_images = bool(self_images)
         if not isinstance(spheres, (bool, np.bool_)):
             raise TypeError(f"spheres must be True or False, got {spheres!r}")
+        use_labels = labels is not None
+        if use_labels:
+            labels = np.asarray(labels)
+            if labels.dtype.kind not in "iu":
+                raise TypeError(f"labels must be integers, got dtype {labels.dtype}")
+            if labels.shape != (n,):
+                raise ValueError(f"labels must have shape ({n},), got {labels.shape}")
+            labels = np.ascontiguousarray(labels, dtype=np.int64)
+        else:
+            labels = np.zeros(0, np.int64)
         if n >= (1 << 31) - 1:
             raise ValueError(f"at most 2**31 - 2 particles are supported, got {n}")
         with num_threads(self.n_threads):
-            return self._build(ws, half, cell, hinv, pbc, self_images, bool(spheres), n,
-                               t_start)
+            return self._build(ws, half, cell, hinv, pbc, self_images, bool(spheres), labels,
+                               use_labels, n, t_start)
 
-    def _build(self, ws, half, cell, hinv, pbc, self_images, spheres, n, t_start):
+    def _build(self, ws, half, cell, hinv, pbc, self_images, spheres, labels, use_labels, n,
+               t_start):
         t0 = time.perf_counter()
         hmax = float(half.max()) if n else 0.0
         per = np.flatnonzero(pbc)
@@ -258,7 +273,7 @@ class SweepCandidates:
         n_overlaps = len(pairs)
         n_chunks = max(1, min(numba.get_num_threads(), n_overlaps // 65536))
         cnt = np.empty((n_chunks, n), np.int64)
-        sel = (self_images, spheres, ws, gpos, half, 2.0 * guard)
+        sel = (self_images, spheres, ws, gpos, half, 2.0 * guard, labels, use_labels)
         gk.image_counts(pairs, n, owner, gcode, *sel, cnt, True)
         qstart = np.empty(n, np.int64)
         qstop = np.empty(n, np.int64)
@@ -286,7 +301,8 @@ class SweepCandidates:
         return vstart, vstop, vb, vs
 
 
-def sweep_candidates(ws, half, cell, pbc, self_images, *, spheres=False, n_threads=None):
+def sweep_candidates(ws, half, cell, pbc, self_images, *, spheres=False, labels=None,
+                     n_threads=None):
     """Candidate images of one frame by Sweep and Prune, in the engine's Verlet layout.
 
     One call of a fresh :class:`SweepCandidates`; see
@@ -294,4 +310,4 @@ def sweep_candidates(ws, half, cell, pbc, self_images, *, spheres=False, n_threa
     ``(vstart, vstop, vb, vs)``.
     """
     return SweepCandidates(n_threads=n_threads).build(ws, half, cell, pbc, self_images,
-                                                      spheres=spheres)
+                                                      spheres=spheres, labels=labels)

@@ -301,6 +301,24 @@ def test_zero_half_widths_and_duplicates():
     check(ws, np.zeros(len(ws)), None, np.zeros(3, bool), False)
 
 
+@pytest.mark.parametrize("spheres", [False, True])
+def test_labels_drop_pairs_of_one_body(spheres):
+    rng = _rng(11)
+    cell = np.array([[2.5, 0, 0], [0.4, 2.6, 0], [0.3, -0.2, 2.4]])
+    ws = _wrap(rng.random((30, 3)) @ cell, cell, True)
+    half = rng.random(30) * 0.9
+    labels = rng.integers(0, 6, 30)
+    full = check(ws, half, cell, np.ones(3, bool), True, spheres=spheres)
+    got = entries(sweep_candidates(ws, half, cell, np.ones(3, bool), True, spheres=spheres,
+                                   labels=labels))
+    assert sorted(got) == sorted(e for e in full if labels[e[0]] != labels[e[1]])
+    assert len(got) < len(full)
+    with pytest.raises(ValueError, match="labels"):
+        sweep_candidates(ws, half, cell, np.ones(3, bool), True, labels=labels[:-1])
+    with pytest.raises(TypeError, match="labels"):
+        sweep_candidates(ws, half, cell, np.ones(3, bool), True, labels=labels * 0.5)
+
+
 def test_empty_and_single():
     for pbc in (np.zeros(3, bool), np.ones(3, bool)):
         res = sweep_candidates(np.empty((0, 3)), np.empty(0), 3.0 * np.eye(3), pbc, True)
@@ -513,3 +531,31 @@ def test_rounding_ties_are_kept_with_spheres(seed):
     for i in range(n):
         assert _key(i, n + i, tuple(int(v) for v in shifts[i])) in keys
     assert (np.abs(shifts).sum(axis=1) > 0).sum() >= n // 2
+
+
+def test_feeds_the_engines_contacts_with_clumps():
+    """Polydisperse radii and clump ids: the narrow test on the candidates gives
+    ContactSearch's contacts with every image."""
+    from granularsap import ContactSearch
+
+    rng = _rng(12)
+    cell = np.array([[5.0, 0, 0], [1.1, 4.7, 0], [0.4, -0.9, 4.9]])
+    n = 80
+    ws = _wrap(rng.random((n, 3)) @ cell, cell, True)
+    radii = np.clip(rng.lognormal(-1.0, 0.6, n), 0.05, 1.2)
+    labels = rng.integers(0, 25, n)
+    vstart, vstop, vb, vs = sweep_candidates(ws, radii, cell, np.ones(3, bool), True,
+                                             spheres=True, labels=labels)
+    mine = set()
+    for p, q, s in entries((vstart, vstop, vb, vs)):
+        d = ws[q] - ws[p]
+        d = d + s[0] * cell[0]
+        d = d + s[1] * cell[1]
+        d = d + s[2] * cell[2]
+        if np.sqrt(d @ d) <= radii[p] + radii[q]:
+            mine.add(_key(p, q, s))
+    i, j, S = ContactSearch(periodic_images="all", quantities="ijS").update(
+        ws, radii, box=cell, clump_ids=labels)
+    theirs = {_key(int(a), int(b), tuple(int(v) for v in s))
+              for a, b, s in zip(i, j, S, strict=True)}
+    assert mine == theirs and len(mine) > 50

@@ -155,11 +155,13 @@ def boxes(ws, half, gpos, owner, guard, lower, upper):
 
 
 @ijit
-def _image(pairs, t, n, owner, gcode, self_images, spheres, ws, gpos, half, guard2):
+def _image(pairs, t, n, owner, gcode, self_images, spheres, ws, gpos, half, guard2, labels,
+           use_labels):
     """Row, partner and code of box pair ``t`` (row -1: not reported).
 
     With ``spheres``, only pairs whose spheres of radius ``half`` (plus the
-    guard ``guard2``, twice the cube guard) touch are reported."""
+    guard ``guard2``, twice the cube guard) touch are reported; with
+    ``use_labels``, only pairs of different ``labels``."""
     i = pairs[t, 0]
     j = pairs[t, 1]
     if i >= n:  # two ghosts: the same image is a real-ghost pair
@@ -179,6 +181,8 @@ def _image(pairs, t, n, owner, gcode, self_images, spheres, ws, gpos, half, guar
         dx = gpos[k, 0] - ws[i, 0]
         dy = gpos[k, 1] - ws[i, 1]
         dz = gpos[k, 2] - ws[i, 2]
+    if use_labels and labels[i] == labels[q]:
+        return np.int64(-1), np.int64(0), np.int64(0)
     if spheres:
         thr = half[i] + half[q] + guard2
         if not dx * dx + dy * dy + dz * dz <= thr * thr * (1.0 + 1e-12):
@@ -192,8 +196,8 @@ def _chunk(k, n_chunks, ch):
 
 
 @pjit
-def image_counts(pairs, n, owner, gcode, self_images, spheres, ws, gpos, half, guard2, cnt,
-                 by_partner):
+def image_counts(pairs, n, owner, gcode, self_images, spheres, ws, gpos, half, guard2, labels,
+                 use_labels, cnt, by_partner):
     """``cnt[ch, x]``: images among chunk ``ch`` of the box pairs with row
     ``x`` (or, with ``by_partner``, partner ``x``)."""
     n_chunks = cnt.shape[0]
@@ -204,7 +208,7 @@ def image_counts(pairs, n, owner, gcode, self_images, spheres, ws, gpos, half, g
         lo, hi = _chunk(k, n_chunks, ch)
         for t in range(lo, hi):
             p, q, c = _image(pairs, t, n, owner, gcode, self_images, spheres, ws, gpos, half,
-                             guard2)
+                             guard2, labels, use_labels)
             if p >= 0:
                 cnt[ch, q if by_partner else p] += 1
 
@@ -237,7 +241,7 @@ def offsets(cnt, start, stop):
 
 @pjit
 def scatter_by_partner(pairs, n, owner, gcode, self_images, spheres, ws, gpos, half, guard2,
-                       cnt, key):
+                       labels, use_labels, cnt, key):
     """Every image into the bucket of its partner ``q``, as ``p << 32 | code``."""
     n_chunks = cnt.shape[0]
     k = pairs.shape[0]
@@ -245,7 +249,7 @@ def scatter_by_partner(pairs, n, owner, gcode, self_images, spheres, ws, gpos, h
         lo, hi = _chunk(k, n_chunks, ch)
         for t in range(lo, hi):
             p, q, c = _image(pairs, t, n, owner, gcode, self_images, spheres, ws, gpos, half,
-                             guard2)
+                             guard2, labels, use_labels)
             if p >= 0:
                 e = cnt[ch, q]
                 key[e] = (p << 32) | c
