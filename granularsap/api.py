@@ -6,7 +6,10 @@ engine.  The engine keeps, between frames, everything temporal coherence
 allows: the bucket boundaries of the parallel sort (Algorithm 2), the sweep
 axes chosen by the dispersion heuristic (Section 5), the expected number of
 pairs per partition, and every working buffer (so steady-state frames write
-into memory that is already mapped).
+into memory that is already mapped).  Beside the paper's sweep it has a
+column sweep (``kernels/boxgrid.py``), with its own kept state (the previous
+frame's column order, region sizes), and ``path="auto"`` picks one of the two
+per call (``SweepAndPrune._choose``).
 """
 
 from __future__ import annotations
@@ -45,22 +48,33 @@ _BIG_FRACTION = 16
 _BOXES_PER_COLUMN = 4
 #: ... and at most this many columns along one axis
 _MAX_SIDE = 1 << 20
+#: columns are this many times the largest small side wide (at least 1: the
+#: 3 x 3 stencil needs it; wider columns mean fewer columns visited per box
+#: for more candidates in each)
+_COLUMN_WIDTH = 2.0
+#: centres sampled to find the binning range when far boxes stretch the span
+_SAMPLE = 4096
 #: boxes per chunk of columns (parallel work unit, independent of threads)
 _CHUNK_BOXES = 4096
 #: big boxes per chunk
 _BIG_CHUNK = 256
-#: auto: fewer boxes than this take the paper's sweep
+#: auto: fewer boxes than this take the paper's sweep (the column sweep is
+#: faster from about 700 boxes, by 0.1-0.2 ms per call at 1000-4000: docs/boxes.md)
 _AUTO_MIN_BOXES = 4096
-#: auto: a larger ratio of the column width to the median box side takes the paper's sweep
-_AUTO_MAX_SPREAD = 4.0
+#: auto: more predicted candidates per box than this take the paper's sweep
+_AUTO_MAX_PREDICTED = 256
 #: auto: candidates tested per (box + pair) of a column frame above which the
 #: paper's sweep takes over for _AUTO_RETRY frames
-_AUTO_MAX_CANDIDATES = 24
+_AUTO_MAX_CANDIDATES = 64
 _AUTO_RETRY = 16
 #: Pairs per box of the last search in this process: the first guess of a
 #: fresh engine's pair buffers (repeated one-shot calls on similar data then
 #: fill them in one pass).
 _LAST_PAIRS_PER_BOX = [2.0]
+#: ... but never more than this many pairs per box (one dense call, say all
+#: boxes on one point, must not make the next engine reserve gigabytes; the
+#: buffers grow when a frame needs more)
+_MAX_PAIRS_HINT = 16.0
 #: Leaf bits of one pairing partition's sharded SuccTree (2**21 bits = 256 KiB).
 _PAIR_TREE_BITS = 1 << 21
 
@@ -122,17 +136,31 @@ class SweepAndPrune:
     swap_threshold : float
         Dispersion D (equation 1 of the paper) of a sweep axis's sort buckets
         above which the axis is swapped out.
-    path : {"auto", "sequential", "parallel"}
+    path : {"auto", "sequential", "parallel", "columns"}
         ``"sequential"`` runs Algorithm 1 as written, ``"parallel"`` Algorithms
-        2-4 (with any number of threads, one included); ``"auto"`` (default)
-        takes the parallel path.  For benchmarks and checks; results are the
-        same.
+        2-4 (with any number of threads, one included), ``"columns"`` the
+        column sweep (``kernels/boxgrid.py``: boxes binned by centre into
+        columns over two axes, swept along the third).  ``"auto"`` (default)
+        chooses per call between the parallel sweep and the column sweep from
+        what the engine measured (number of boxes, spread of their sizes,
+        candidates tested per pair in the last frame) and records the choice
+        in ``stats["path"]`` and ``stats["path_reason"]``.  Results are the
+        same on every path (docs/boxes.md).
 
     Notes
     -----
     Boxes are closed: ``i`` and ``j`` overlap iff ``lower_i <= upper_j`` and
     ``lower_j <= upper_i`` on every axis.  The number of boxes may change
     between calls (the temporal state is then reset).
+
+    ``stats`` after each call: ``path`` and ``path_reason``; ``seconds`` per
+    phase (``sort``, ``candidates``, ``pairing``, ``total``; the column path
+    counts binning and sorting as ``sort`` and its sweep as ``pairing``);
+    ``axes`` and ``dispersion`` (the paper's sweep axes and the D of its sort
+    buckets; on the column path the two column axes and the D of the boxes
+    over the grid's slabs along each); ``swaps``; ``candidates_tested`` and
+    ``pairs``; on the column path ``columns`` (axes, sweep axis, grid, widths,
+    boxes in the big list).
 
     Examples
     --------
@@ -180,6 +208,7 @@ class SweepAndPrune:
         self._g_ratio = None
         self._g_z = None
         self._g_big_engine = None
+        self._g_binned = None  # (frame, grid, fresh) of the last binning
         # what auto measured: the paper sweep's dispersion, per-path history
         self._sap_disp = {}
         self._history = {}
@@ -260,8 +289,8 @@ class SweepAndPrune:
 
     @property
     def staging_nbytes(self):
-        """Bytes of the per-partition buffers pairs are written to before
-        being concatenated into the returned array."""
+        """Bytes of the per-partition (column path: per-chunk) buffers pairs
+        are written to before being concatenated into the returned array."""
         total = self._out.nbytes if hasattr(self, "_out") else 0
         if self._g_out is not None:
             total += self._g_out.nbytes
@@ -299,12 +328,11 @@ class SweepAndPrune:
     def _update(self, lower, upper, threads):
         t_start = time.perf_counter()
         self._frame += 1
-        geometry = None
+        geometry = None  # measured by auto, reused by the column path
         if self._path is not None:
             path, reason = self._path, f"path={self._path!r} was asked for"
         else:
-            geometry = self._geometry(lower, upper, threads)
-            path, reason = self._choose(lower.shape[0], geometry)
+            path, reason, geometry = self._choose(lower, upper, threads)
         if path == "columns":
             pairs = self._update_columns(lower, upper, threads, t_start, geometry)
         else:
@@ -438,24 +466,22 @@ class SweepAndPrune:
         return pairs
 
     # ------------------------------------------------------------ path choice
-    def _choose(self, n, geo):
+    def _choose(self, lower, upper, threads):
         """``(path, reason)`` for this frame (``path="auto"``).
 
-        The column sweep wins when the boxes have similar sizes (its columns
-        are as wide as the largest small box); the paper's sweep when there
-        are few boxes, when sizes spread widely, or when the last column
-        frame tested many more candidates than it found pairs."""
+        The column sweep, unless there are few boxes, or the grid predicts
+        many candidates per box (boxes piled into few columns), or the last
+        column frame tested many candidates per box and pair (then the paper's
+        sweep runs for ``_AUTO_RETRY`` frames before the columns are tried
+        again).  The paper's dispersion D, when it has run, is quoted.
+        Returns ``(path, reason, geometry or None)``."""
+        n = lower.shape[0]
         if n < _AUTO_MIN_BOXES:
             return "parallel", (f"{n} boxes: below {_AUTO_MIN_BOXES}, the paper's sweep "
-                                "costs less than building columns")
-        spread = geo["spread"]
-        if spread > _AUTO_MAX_SPREAD:
-            return "parallel", (f"box sizes spread {spread:.1f}x (largest small box over the "
-                                f"median, above {_AUTO_MAX_SPREAD:g}): columns would be too "
-                                "wide, so the paper's sweep")
-        last = self._history.get("columns")
+                                "costs less than building columns"), None
         if self._frame < self._g_avoid_until:
-            return "parallel", self._g_avoid_reason
+            return "parallel", self._g_avoid_reason, None
+        last = self._history.get("columns")
         if last is not None and last["frame"] == self._frame - 1:
             per = last["tested"] / max(last["pairs"] + last["n"], 1)
             if per > _AUTO_MAX_CANDIDATES:
@@ -464,13 +490,24 @@ class SweepAndPrune:
                     f"the column sweep tested {per:.0f} candidates per box and pair in "
                     f"frame {last['frame']} (above {_AUTO_MAX_CANDIDATES}): the paper's "
                     f"sweep until frame {self._g_avoid_until}")
-                return "parallel", self._g_avoid_reason
-        reason = (f"{n} boxes of similar sizes (spread {spread:.1f}x, {geo['big']} in the big "
-                  "list): the column sweep")
+                return "parallel", self._g_avoid_reason, None
+        geo = self._geometry(lower, upper, threads)
+        grid = self._bin_columns(lower, upper, threads, geo)
+        pred = self._predict_candidates(geo, grid)
+        if pred > _AUTO_MAX_PREDICTED:
+            self._g_avoid_until = self._frame + _AUTO_RETRY
+            self._g_avoid_reason = (
+                f"the column grid {grid[7]} x {grid[8]} predicted {pred:.0f} candidates per "
+                f"box in frame {self._frame} (above {_AUTO_MAX_PREDICTED}): the paper's "
+                f"sweep until frame {self._g_avoid_until}")
+            return "parallel", self._g_avoid_reason, geo
+        reason = (f"{n} boxes, column grid {grid[7]} x {grid[8]} predicting {pred:.0f} "
+                  f"candidates per box, sizes spread {geo['spread']:.1f}x, {geo['big']} in "
+                  "the big list: the column sweep")
         if self._sap_disp:
             d = max(self._sap_disp.values())
             reason += f" (the paper's sort last had dispersion D = {d:.2f})"
-        return "columns", reason
+        return "columns", reason, geo
 
     # ------------------------------------------------------------ column path
     def _geometry(self, lower, upper, threads):
@@ -513,20 +550,38 @@ class SweepAndPrune:
                    cmin=cmin.min(axis=0), cmax=cmax.max(axis=0))
         return geo
 
-    def _grid(self, geo):
+    def _grid(self, geo, lower, upper):
         """Column axes, sweep axis, origin, widths and counts of the grid."""
         n_small = geo["n"] - geo["big"]
-        span = geo["cmax"] - geo["cmin"]
-        mag = np.maximum(np.abs(geo["cmin"]), np.abs(geo["cmax"]))
+        cmin, cmax = geo["cmin"].copy(), geo["cmax"].copy()
+        mag = np.maximum(np.abs(cmin), np.abs(cmax))
+        with np.errstate(over="ignore", invalid="ignore"):
+            span = cmax - cmin
+            w0 = geo["width"] * (1.0 + 1e-9) + 1e-12 * mag
+        cap = max(1, n_small // _BOXES_PER_COLUMN)
+        if n_small > 4 * _SAMPLE and np.all(np.isfinite(span)) and np.prod(
+                np.minimum(span / np.maximum(w0 * _COLUMN_WIDTH, 1e-300), 1e9) + 1.0) > cap:
+            # Too many columns for the boxes: a few far boxes may stretch the
+            # span.  Bin over the range that holds all but about 0.1% of a
+            # sample of the centres; boxes outside go to the edge columns
+            # (clamping keeps neighbouring columns neighbours).
+            step = n_small // _SAMPLE
+            centre = 0.5 * lower[::step] + 0.5 * upper[::step]
+            q = np.quantile(centre, [0.001, 0.999], axis=0)
+            lo_q, hi_q = q[0] - w0, q[1] + w0
+            keep = (hi_q - lo_q) < 0.5 * span
+            cmin = np.where(keep, lo_q, cmin)
+            cmax = np.where(keep, hi_q, cmax)
+            span = cmax - cmin
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             # the margin covers the rounding of centres and of the binning
             w = geo["width"] * (1.0 + 1e-9) + 1e-12 * mag
+            w = np.where(np.isnan(w), np.inf, w)
             bins = np.where((w > 0) & np.isfinite(span) & np.isfinite(w), span / w, 0.0) + 1.0
         z = int(np.argmin(bins))
         if self._g_z is not None and bins[self._g_z] <= 2.0 * bins[z]:
             z = self._g_z  # hysteresis: keep the axis the kept order is sorted on
         c0, c1 = (a for a in range(3) if a != z)
-        cap = max(1, n_small // _BOXES_PER_COLUMN)
         ws = [0.0, 0.0]
         nb = [1, 1]
         for a, c in enumerate((c0, c1)):
@@ -535,7 +590,7 @@ class SweepAndPrune:
                     wa, 1e-300)):
                 continue  # one column along this axis
             # zero-size sides: pairs share the coordinate, any width will do
-            nb[a] = _MAX_SIDE if wa == 0.0 else int(min(s / wa, _MAX_SIDE))
+            nb[a] = _MAX_SIDE if wa == 0.0 else int(min(s / (_COLUMN_WIDTH * wa), _MAX_SIDE))
             nb[a] = max(nb[a], 1)
             ws[a] = s / nb[a]  # columns tile the centres' span exactly, no narrower than wa
             if ws[a] < wa:
@@ -553,23 +608,18 @@ class SweepAndPrune:
                 inv[a] = 1.0 / ws[a]
                 if not np.isfinite(inv[a]):
                     nb[a], inv[a] = 1, 0.0
-        reach_z = float(geo["width"][z]) * (1.0 + 1e-9) + 1e-12 * float(mag[z])
-        return (c0, c1, z, float(geo["cmin"][c0]), float(geo["cmin"][c1]), inv[0], inv[1],
-                nb[0], nb[1], ws, reach_z)
+        # largest small side per axis with the rounding margin (inf if it overflowed)
+        reach = [float(w[c0]), float(w[c1]), float(w[z])]
+        return (c0, c1, z, float(cmin[c0]), float(cmin[c1]), inv[0], inv[1], nb[0], nb[1], ws,
+                reach)
 
-    def _update_columns(self, lower, upper, threads, t_start, geo):
+    def _bin_columns(self, lower, upper, threads, geo):
+        """Grid, column of every box and the counting sort by column over the
+        previous frame's order; returns the grid (also kept for the sweep)."""
         n = lower.shape[0]
-        t0 = time.perf_counter()
         k = bg if threads > 1 else bg.serial
-        if geo is None:
-            geo = self._geometry(lower, upper, threads)
-        stats = {"frame": self._frame, "n": n, "threads": threads, "path": "columns"}
-        if n < 2:
-            pairs = np.empty((0, 2), np.int64)
-            self._finish(stats, pairs, 0, {"sort": 0.0, "candidates": 0.0, "pairing": 0.0},
-                         {a: 0.0 for a in self._axes}, t_start)
-            return pairs
-        c0, c1, z, o0, o1, inv0, inv1, nb0, nb1, ws, reach_z = self._grid(geo)
+        grid = self._grid(geo, lower, upper)
+        c0, c1, z, o0, o1, inv0, inv1, nb0, nb1, ws, reach = grid
         ncol = nb0 * nb1
         fresh = self._g_perm is None or self._g_perm.shape[0] != n
         if fresh:
@@ -590,6 +640,47 @@ class SweepAndPrune:
             self._g_chunks = np.empty(ncol + 2, np.int64)
         start = self._g_start[:ncol + 2]
         bg.counting_sort(self._g_col, self._g_prev, ncol + 1, start, self._g_perm)
+        self._g_binned = (self._frame, grid, fresh)
+        return grid
+
+    def _predict_candidates(self, geo, grid):
+        """Candidates per box the column sweep would test if the boxes were
+        spread evenly along the sweep axis inside each column: half the pairs
+        of boxes in neighbouring columns, times the fraction of a column's
+        length that a typical box's window covers."""
+        nb0, nb1 = grid[7], grid[8]
+        z = grid[2]
+        n_small = geo["n"] - geo["big"]
+        if n_small < 2:
+            return 0.0
+        occ = np.diff(self._g_start[:nb0 * nb1 + 1]).reshape(nb0, nb1).astype(np.float64)
+        pad = np.pad(occ, 1)
+        near = sum(pad[1 + a:1 + a + nb0, 1 + b:1 + b + nb1]
+                   for a in (-1, 0, 1) for b in (-1, 0, 1))
+        side = 0.75 * geo["typical"]  # the middle of the median size bucket
+        length = float(geo["cmax"][z] - geo["cmin"][z]) + side
+        frac = min(1.0, side / length) if length > 0 and np.isfinite(length) else 1.0
+        return 0.5 * float((occ * near).sum()) * frac / n_small
+
+    def _update_columns(self, lower, upper, threads, t_start, geo):
+        n = lower.shape[0]
+        t0 = time.perf_counter()
+        k = bg if threads > 1 else bg.serial
+        if geo is None:
+            geo = self._geometry(lower, upper, threads)
+        stats = {"frame": self._frame, "n": n, "threads": threads, "path": "columns"}
+        if n < 2:
+            pairs = np.empty((0, 2), np.int64)
+            self._finish(stats, pairs, 0, {"sort": 0.0, "candidates": 0.0, "pairing": 0.0},
+                         {a: 0.0 for a in self._axes}, t_start)
+            return pairs
+        if self._g_binned is None or self._g_binned[0] != self._frame:
+            self._bin_columns(lower, upper, threads, geo)
+        _, grid, fresh = self._g_binned
+        c0, c1, z, o0, o1, inv0, inv1, nb0, nb1, ws, reach = grid
+        h0, h1, reach_z = 0.5 * reach[0], 0.5 * reach[1], reach[2]
+        ncol = nb0 * nb1
+        start = self._g_start[:ncol + 2]
         perm = self._g_perm
         nch = bg.column_chunks(start, ncol + 1, _CHUNK_BOXES, self._g_chunks)
         sort_chunks = self._g_chunks[:nch + 1]
@@ -608,7 +699,7 @@ class SweepAndPrune:
         # from the last frame (temporal coherence)
         rows = np.concatenate((np.diff(start[sweep_chunks]), np.diff(big_chunks)))
         nreg = len(rows)
-        ratio = self._g_ratio or max(_LAST_PAIRS_PER_BOX[0], 2.0)
+        ratio = self._g_ratio or min(max(_LAST_PAIRS_PER_BOX[0], 2.0), _MAX_PAIRS_HINT)
         caps = (rows * (1.25 * ratio)).astype(np.int64) + 64
         if self._g_caps is not None and len(self._g_caps) == nreg:
             caps = np.maximum(self._g_caps, caps // 2)
@@ -623,8 +714,9 @@ class SweepAndPrune:
         ns = len(sweep_chunks) - 1
         while True:
             if todo[:ns].any():
-                k.sweep(sweep_chunks, start, nb0, nb1, xl, xu, yl, yu, zl, zu, perm,
-                        self._g_out, reg[:ns], caps[:ns], todo[:ns], need[:ns], tested[:ns])
+                k.sweep(sweep_chunks, start, nb0, nb1, o0, o1, inv0, inv1, h0, h1, xl, xu, yl,
+                        yu, zl, zu, perm, self._g_out, reg[:ns], caps[:ns], todo[:ns],
+                        need[:ns], tested[:ns])
             if n_big and todo[ns:].any():
                 k.sweep_big(big_chunks, big0, start, nb0, nb1, o0, o1, inv0, inv1, reach_z,
                             xl, xu, yl, yu, zl, zu, perm, self._g_out, reg[ns:], caps[ns:],
@@ -691,7 +783,7 @@ class SweepAndPrune:
         """Pairs each partition's buffer should hold (a guess; it grows)."""
         if self._pair_hint is not None:
             return max(1024, self._pair_hint + self._pair_hint // 8)
-        ratio = max(_LAST_PAIRS_PER_BOX[0], 2.0)
+        ratio = min(max(_LAST_PAIRS_PER_BOX[0], 2.0), _MAX_PAIRS_HINT)
         return 1024 + int(1.25 * ratio * n / parts)
 
     @staticmethod
@@ -738,6 +830,10 @@ def _box_overlaps_path(lower, upper, *, path=None, n_threads=None, partitions=No
 
 def box_overlaps(lower, upper, *, n_threads=None):
     """All pairs of overlapping axis-aligned boxes.
+
+    One call of a fresh :class:`SweepAndPrune` with ``path="auto"``: the
+    column sweep for boxes of similar sizes, the paper's parallel sweep for
+    few boxes or widely spread sizes (docs/boxes.md).
 
     Parameters
     ----------

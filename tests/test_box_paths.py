@@ -228,16 +228,57 @@ def test_auto_records_its_choice_and_reason():
     assert "column" in s["path_reason"]
 
 
-def test_auto_takes_the_paper_sweep_for_a_wide_size_spread():
+def test_auto_keeps_columns_for_a_wide_size_spread():
+    """Sizes over 9 octaves: the forward windows keep the column sweep cheap."""
     rng = np.random.default_rng(7)
     n = 20000
     lo = rng.random((n, 3)) * 100.0
-    side = 2.0 ** rng.uniform(-6, 3, (n, 1))  # sides over 9 octaves: no column width fits
+    side = 2.0 ** rng.uniform(-6, 3, (n, 1))
     engine = SweepAndPrune()
     pairs = engine.update(lo, lo + side)
-    assert engine.stats["path"] == "parallel"
-    assert "spread" in engine.stats["path_reason"]
+    assert engine.stats["path"] == "columns"
+    assert engine.stats["columns"]["spread"] > 4
     check(pairs, lo, lo + side)
+
+
+def test_auto_falls_back_when_the_grid_predicts_many_candidates(monkeypatch):
+    import granularsap.api as api
+
+    monkeypatch.setattr(api, "_AUTO_MAX_PREDICTED", 0.5)
+    lo, hi = paper_like(5000)
+    engine = SweepAndPrune()
+    for _ in range(3):
+        check(engine.update(lo, hi), lo, hi)
+        assert engine.stats["path"] == "parallel"
+        assert "predicted" in engine.stats["path_reason"]
+        assert "until frame 17" in engine.stats["path_reason"]
+
+
+def test_auto_falls_back_after_a_frame_with_many_candidates_then_retries(monkeypatch):
+    import granularsap.api as api
+
+    monkeypatch.setattr(api, "_AUTO_MAX_CANDIDATES", 0.01)
+    monkeypatch.setattr(api, "_AUTO_RETRY", 3)
+    lo, hi = paper_like(5000)
+    engine = SweepAndPrune()
+    paths = []
+    for _ in range(6):
+        check(engine.update(lo, hi), lo, hi)
+        paths.append(engine.stats["path"])
+    assert paths == ["columns", "parallel", "parallel", "parallel", "columns", "parallel"]
+    engine.update(lo, hi)
+    assert "candidates per box and pair in frame 5" in engine.stats["path_reason"]
+
+
+def test_far_boxes_do_not_collapse_the_grid():
+    """Two boxes a million sides away: the grid is binned over the bulk."""
+    lo, hi = paper_like(20000, seed=9)
+    lo[:2] += 1e6
+    hi[:2] += 1e6
+    pairs, engine = run("columns", 2, lo, hi)
+    check(pairs, lo, hi)
+    nb0, nb1 = engine.stats["columns"]["grid"]
+    assert nb0 * nb1 >= 100
 
 
 def test_auto_small_inputs_take_the_paper_sweep():

@@ -277,15 +277,41 @@ def _first_after(zl, perm, lo, hi, k, i):
     return lo
 
 
+@ijit
+def _scan(q, e, top, pxl, pxu, pyl, pyu, ip, xl, xu, yl, yu, zl, perm, out, base, pos, cap):
+    """Test ``q, q + 1, ...`` (below ``e``) while ``zl[q] <= top``: the boxes that
+    overlap ``p`` on the sweep axis; the column axes decide.  Returns
+    ``(pos, tested)``."""
+    tested = 0
+    while q < e and zl[q] <= top:
+        tested += 1
+        ok = (xl[q] <= pxu) & (pxl <= xu[q]) & (yl[q] <= pyu) & (pyl <= yu[q])
+        if pos < cap:  # written whether kept or not: no unpredictable branch
+            iq = perm[q]
+            out[base + 2 * pos] = min(ip, iq)
+            out[base + 2 * pos + 1] = max(ip, iq)
+        pos += np.int64(ok)
+        q += 1
+    return pos, tested
+
+
 @jit
-def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, xl, xu, yl, yu, zl, zu, perm, out, base,
-                 cap):
+def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, o0, o1, inv0, inv1, h0, h1, xl, xu, yl, yu, zl,
+                 zu, perm, out, base, cap):
     """Pairs of the columns ``[c_lo, c_hi)``; writes at most ``cap`` pairs from
-    ``out[base]``; returns ``(pairs, candidates tested)``."""
+    ``out[base]``; returns ``(pairs, candidates tested)``.
+
+    Box ``p`` visits only the neighbouring columns that can hold the centre of
+    a small box meeting it (its extent widened by ``h0``, ``h1``: half the
+    largest small side plus the rounding margin), at most the 3 x 3 stencil
+    since columns are at least that side wide.  Per neighbouring column a
+    pointer keeps the first box after the previous ``p`` of the column; it is
+    moved on only when the column is visited.
+    """
     pos = 0
     tested = 0
-    ptr = np.empty(8, np.int64)
-    end = np.empty(8, np.int64)
+    ptr = np.empty(9, np.int64)
+    end = np.empty(9, np.int64)
     for col in range(c_lo, c_hi):
         lo_c = start[col]
         hi_c = start[col + 1]
@@ -293,25 +319,17 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, xl, xu, yl, yu, zl, zu, perm, out,
             continue
         b0 = col // nb1
         b1 = col - b0 * nb1
-        n_live = 0
-        k0 = zl[lo_c]
-        i0 = perm[lo_c]
-        for d0 in range(-1, 2):
-            a0 = b0 + d0
-            if a0 < 0 or a0 >= nb0:
-                continue
-            for d1 in range(-1, 2):
-                a1 = b1 + d1
-                if (d0 == 0 and d1 == 0) or a1 < 0 or a1 >= nb1:
-                    continue
-                c2 = a0 * nb1 + a1
-                lo2 = start[c2]
-                hi2 = start[c2 + 1]
-                if lo2 == hi2:
-                    continue
-                ptr[n_live] = _first_after(zl, perm, lo2, hi2, k0, i0)
-                end[n_live] = hi2
-                n_live += 1
+        for d0 in range(3):
+            a0 = b0 + d0 - 1
+            for d1 in range(3):
+                a1 = b1 + d1 - 1
+                k = 3 * d0 + d1
+                if a0 < 0 or a0 >= nb0 or a1 < 0 or a1 >= nb1:
+                    ptr[k] = 0
+                    end[k] = 0
+                else:
+                    ptr[k] = start[a0 * nb1 + a1]
+                    end[k] = start[a0 * nb1 + a1 + 1]
         for p in range(lo_c, hi_c):
             kz = zl[p]
             ip = perm[p]
@@ -321,37 +339,32 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, xl, xu, yl, yu, zl, zu, perm, out,
             pyl = yl[p]
             pyu = yu[p]
             # own column: everything after p in order, while it starts below p's top
-            q = p + 1
-            while q < hi_c and zl[q] <= top:
-                tested += 1
-                ok = (xl[q] <= pxu) & (pxl <= xu[q]) & (yl[q] <= pyu) & (pyl <= yu[q])
-                if pos < cap:  # written whether kept or not: no unpredictable branch
-                    iq = perm[q]
-                    out[base + 2 * pos] = min(ip, iq)
-                    out[base + 2 * pos + 1] = max(ip, iq)
-                pos += np.int64(ok)
-                q += 1
-            for o in range(n_live):
-                q = ptr[o]
-                e = end[o]
-                while q < e and not _before(kz, ip, zl[q], perm[q]):
-                    q += 1
-                ptr[o] = q
-                while q < e and zl[q] <= top:
-                    tested += 1
-                    ok = (xl[q] <= pxu) & (pxl <= xu[q]) & (yl[q] <= pyu) & (pyl <= yu[q])
-                    if pos < cap:
-                        iq = perm[q]
-                        out[base + 2 * pos] = min(ip, iq)
-                        out[base + 2 * pos + 1] = max(ip, iq)
-                    pos += np.int64(ok)
-                    q += 1
+            pos, t = _scan(p + 1, hi_c, top, pxl, pxu, pyl, pyu, ip, xl, xu, yl, yu, zl, perm,
+                           out, base, pos, cap)
+            tested += t
+            r0 = max(_cell(pxl - h0, o0, inv0, nb0) - b0, -1) + 1
+            s0 = min(_cell(pxu + h0, o0, inv0, nb0) - b0, 1) + 1
+            r1 = max(_cell(pyl - h1, o1, inv1, nb1) - b1, -1) + 1
+            s1 = min(_cell(pyu + h1, o1, inv1, nb1) - b1, 1) + 1
+            for d0 in range(r0, s0 + 1):
+                for d1 in range(r1, s1 + 1):
+                    k = 3 * d0 + d1
+                    if k == 4:
+                        continue
+                    q = ptr[k]
+                    e = end[k]
+                    while q < e and not _before(kz, ip, zl[q], perm[q]):
+                        q += 1
+                    ptr[k] = q
+                    pos, t = _scan(q, e, top, pxl, pxu, pyl, pyu, ip, xl, xu, yl, yu, zl,
+                                   perm, out, base, pos, cap)
+                    tested += t
     return pos, tested
 
 
 @pjit
-def sweep(chunk_cols, start, nb0, nb1, xl, xu, yl, yu, zl, zu, perm, out, reg_start,
-          reg_cap, todo, need, tested):
+def sweep(chunk_cols, start, nb0, nb1, o0, o1, inv0, inv1, h0, h1, xl, xu, yl, yu, zl, zu, perm,
+          out, reg_start, reg_cap, todo, need, tested):
     """``_sweep_chunk`` for every chunk marked in ``todo``: chunk ``c`` writes pairs
     ``(min id, max id)`` flat into ``out[reg_start[c]:]`` (at most ``reg_cap[c]``
     of them) and ``need[c]`` receives how many it found."""
@@ -360,8 +373,8 @@ def sweep(chunk_cols, start, nb0, nb1, xl, xu, yl, yu, zl, zu, perm, out, reg_st
         if not todo[c]:
             continue
         need[c], tested[c] = _sweep_chunk(chunk_cols[c], chunk_cols[c + 1], start, nb0, nb1,
-                                          xl, xu, yl, yu, zl, zu, perm, out, 2 * reg_start[c],
-                                          reg_cap[c])
+                                          o0, o1, inv0, inv1, h0, h1, xl, xu, yl, yu, zl, zu,
+                                          perm, out, 2 * reg_start[c], reg_cap[c])
 
 
 @jit
