@@ -269,10 +269,40 @@ def _concat_pieces(*pieces):
     return idx, pos, rad, lab, owned
 
 
+def _route_frame(plan, pos, rad, lab, offset):
+    """:func:`_route` as one pandas DataFrame with a ``dom`` column (for a shuffle)."""
+    import pandas as pd
+
+    pieces = _route(plan, pos, rad, lab, offset)
+    cols = {"dom": np.concatenate([np.full(len(p[0]), d, np.int64)
+                                   for d, p in enumerate(pieces)]),
+            "idx": np.concatenate([p[0] for p in pieces])}
+    xyz = np.concatenate([p[1] for p in pieces]).reshape(-1, 3)
+    cols["x"], cols["y"], cols["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    if rad is not None:
+        cols["r"] = np.concatenate([p[2] for p in pieces])
+    if lab is not None:
+        cols["label"] = np.concatenate([p[3] for p in pieces])
+    cols["owned"] = np.concatenate([p[4] for p in pieces])
+    return pd.DataFrame(cols)
+
+
+def _unpack(inp):
+    """A domain's input as ``(idx, positions, radii, labels, owned)``, idx ascending."""
+    if isinstance(inp, tuple):
+        return inp
+    order = np.argsort(inp["idx"].to_numpy(), kind="stable")
+    idx = inp["idx"].to_numpy()[order]
+    pos = np.ascontiguousarray(inp[["x", "y", "z"]].to_numpy(dtype=np.float64)[order])
+    rad = inp["r"].to_numpy()[order] if "r" in inp.columns else None
+    lab = inp["label"].to_numpy()[order] if "label" in inp.columns else None
+    return idx, pos, rad, lab, inp["owned"].to_numpy()[order]
+
+
 # -------------------------------------------------------------- domain tasks
 def _domain_search(plan, inp):
     """Pairs of one domain's subset: (local pairs, distances, idx, owned)."""
-    idx, pos, rad, lab, owned = inp
+    idx, pos, rad, lab, owned = _unpack(inp)
     search = plan.search()
     if plan.kind == "cutoff":
         pairs, dist = search.update(pos, plan.box)
@@ -302,7 +332,17 @@ def _domain_histogram(plan, inp, edges):
     return counts.astype(np.int64)
 
 
-def _domain_coordination(plan, inp, bounds):
+def _domain_coordination(plan, inp):
+    """Coordination numbers of the particles a domain owns: DataFrame gid, cn."""
+    import pandas as pd
+
+    pairs, _, idx, owned = _domain_search(plan, inp)
+    m = len(idx)
+    cn = np.bincount(pairs[:, 0], minlength=m) + np.bincount(pairs[:, 1], minlength=m)
+    return pd.DataFrame({"gid": idx[owned], "cn": cn[owned].astype(np.int64)})
+
+
+def _domain_coordination_split(plan, inp, bounds):
     """Coordination numbers of the owned particles, split by output chunk."""
     pairs, _, idx, owned = _domain_search(plan, inp)
     m = len(idx)
@@ -326,6 +366,49 @@ def _assemble(lo, hi, *pieces):
         raise RuntimeError(f"particle {lo + bad} was owned by {int(seen[bad])} domains "
                            "instead of one; the decomposition is inconsistent")
     return out
+
+
+def _domain_pairs_part(part, plan):
+    return _domain_pairs(plan, part)
+
+
+def _domain_coordination_part(part, plan):
+    return _domain_coordination(plan, part)
+
+
+def _route_partition(part, plan):
+    """Route one partition of the frame (index: global particle index)."""
+    offset = int(part.index[0]) if len(part) else 0
+    if len(part) and not np.array_equal(part.index.to_numpy(),
+                                        np.arange(offset, offset + len(part))):
+        raise RuntimeError("positions partition rows are not consecutive particles")
+    pos = part[["x", "y", "z"]].to_numpy(dtype=np.float64)
+    rad = part["r"].to_numpy() if "r" in part.columns else None
+    lab = part["label"].to_numpy() if "label" in part.columns else None
+    return _route_frame(plan, pos, rad, lab, offset)
+
+
+def _part_count(part, plan):
+    import pandas as pd
+
+    return pd.Series([_domain_count(plan, part)], dtype=np.int64)
+
+
+def _part_histogram(part, plan, edges):
+    import pandas as pd
+
+    return pd.Series(_domain_histogram(plan, part, edges), dtype=np.int64)
+
+
+def _check_block(df, bounds, partition_info=None):
+    """One output chunk (rows sorted by particle index): every particle exactly once."""
+    k = partition_info["number"]
+    lo, hi = int(bounds[k]), int(bounds[k + 1])
+    gid = df.index.to_numpy()
+    if len(gid) != hi - lo or not np.array_equal(gid, np.arange(lo, hi)):
+        raise RuntimeError(f"particles {lo}..{hi - 1}: {len(gid)} coordination numbers "
+                           f"instead of {hi - lo}; the decomposition is inconsistent")
+    return df["cn"]
 
 
 # ------------------------------------------------------------------ the grid
@@ -549,15 +632,30 @@ class DomainSearch:
                           halo=tuple(float(v) for v in halo), n=n, n_threads=n_threads,
                           has_labels=lab is not None)
         # ------------------------------------------------- route to domains
+        self._shuffle = "p2p" if self.client is not None else "tasks"
+        self._routed = None
         if self._dask:
-            lblocks = lab.to_delayed().ravel() if lab is not None else [None] * len(blocks)
+            # chunks -> domains in one shuffle (p2p on a cluster: O(chunks + domains)
+            # tasks instead of one per chunk and domain); the frame's index is the
+            # global particle index
+            dd, _ = _dataframe()
             nd = self.plan.n_domains
-            routed = [delayed(_route, nout=nd, pure=True)(self.plan, b, r, lb, int(o))
-                      for b, r, lb, o in zip(blocks, rblocks, lblocks, offsets[:-1],
-                                             strict=True)]
-            self._inputs = [delayed(_concat_pieces, pure=True)(*[rt[d] for rt in routed])
-                            for d in range(nd)]
-            self._bounds = offsets
+            cols = [positions.astype(np.float64)]
+            names = ["x", "y", "z"]
+            if rad is not None:
+                cols.append(rad.astype(np.float64)[:, None])
+                names.append("r")
+            frame = dd.from_dask_array(da.concatenate(cols, axis=1) if len(cols) > 1
+                                       else cols[0], columns=names)
+            if lab is not None:
+                frame["label"] = dd.from_dask_array(lab)
+            meta = _route_frame(self.plan, np.empty((0, 3)),
+                                None if rad is None else np.empty(0),
+                                None if lab is None else np.empty(0, np.int64), 0)
+            routed = frame.map_partitions(_route_partition, self.plan, meta=meta)
+            self._routed = routed.set_index("dom", divisions=list(range(nd + 1)),
+                                            shuffle_method=self._shuffle)
+            self._bounds = np.unique(offsets)
         else:
             pieces = [_route(self.plan, positions[a:a + _ROUTE_BLOCK],
                              None if rad is None else rad[a:a + _ROUTE_BLOCK],
@@ -573,7 +671,7 @@ class DomainSearch:
             step = max(1, -(-n // max(1, self.plan.n_domains)))
             self._bounds = np.unique(np.concatenate(
                 [np.arange(0, n, step), [n]])).astype(np.int64)
-        self.domain_sizes = None if self._dask else [len(i[0]) for i in inputs]
+        self._sizes = None if self._dask else [len(i[0]) for i in inputs]
 
     # ------------------------------------------------------------- helpers
     def _compute(self, objs):
@@ -597,8 +695,31 @@ class DomainSearch:
         """Number of spatial domains (partitions of :meth:`pairs`)."""
         return self.plan.n_domains
 
+    def persist(self):
+        """Route the particles to their domains now and keep them on the cluster
+        (or in memory with the threaded scheduler), so that several results of
+        a dask.array frame route it once.  Dask can still recompute what a lost
+        worker held.  Returns ``self``."""
+        if self._dask:
+            if self.client is not None:
+                self._routed = self.client.persist(self._routed)
+            else:
+                self._routed = self._routed.persist(scheduler="threads")
+        return self
+
     def _per_domain(self, func, *args):
         return [delayed(func, pure=True)(self.plan, inp, *args) for inp in self._inputs]
+
+    def domain_sizes(self):
+        """Particles (owned plus halo) given to each domain, a list (computed now
+        for a dask.array frame: a routing pass unless :meth:`persist` ran)."""
+        if self._sizes is None:
+            _, pd = _dataframe()
+            sizes = self._routed.map_partitions(
+                lambda part: pd.Series([len(part)], dtype=np.int64),
+                meta=pd.Series(np.empty(0, np.int64)))
+            self._sizes = [int(v) for v in self._compute([sizes])[0]]
+        return list(self._sizes)
 
     # ------------------------------------------------------------- results
     def pairs(self):
@@ -611,10 +732,17 @@ class DomainSearch:
         dd, pd = _dataframe()
         meta = pd.DataFrame({"i": np.empty(0, np.int64), "j": np.empty(0, np.int64),
                              "distance": np.empty(0, np.float64)})
+        if self._routed is not None:
+            return self._routed.map_partitions(_domain_pairs_part, self.plan, meta=meta)
         return dd.from_delayed(self._per_domain(_domain_pairs), meta=meta, verify_meta=False)
 
     def count_pairs(self):
         """Total number of pairs (contacts), a lazy 0-d int64 dask.array."""
+        if self._routed is not None:
+            _, pd = _dataframe()
+            counts = self._routed.map_partitions(_part_count, self.plan,
+                                                 meta=pd.Series(np.empty(0, np.int64)))
+            return counts.to_dask_array(lengths=[1] * self.n_domains).sum()
         parts = [da.from_delayed(p, shape=(), dtype=np.int64)
                  for p in self._per_domain(_domain_count)]
         return da.stack(parts).sum()
@@ -622,15 +750,27 @@ class DomainSearch:
     def coordination_numbers(self):
         """Pairs per particle, an ``(n,)`` int64 dask.array in input order.
 
-        Chunked like a dask.array input (NumPy input: about ``n / domains``
-        per chunk).  Equals ``np.bincount(i, minlength=n) + np.bincount(j,
-        minlength=n)`` of the single-machine pairs.
+        Chunked like a dask.array input (empty chunks dropped; NumPy input:
+        about ``n / domains`` per chunk).  Equals ``np.bincount(i, minlength=n)
+        + np.bincount(j, minlength=n)`` of the single-machine pairs.
         """
         bounds = self._bounds
-        nc = len(bounds) - 1
         if self.n == 0:
             return da.zeros(0, dtype=np.int64, chunks=1)
-        parts = [delayed(_domain_coordination, nout=nc, pure=True)(self.plan, inp, bounds)
+        if self._routed is not None:
+            _, pd = _dataframe()
+            meta = pd.DataFrame({"gid": np.empty(0, np.int64), "cn": np.empty(0, np.int64)})
+            owned = self._routed.map_partitions(_domain_coordination_part, self.plan,
+                                                meta=meta)
+            # domains -> chunks in input order, in one shuffle
+            by_chunk = owned.set_index("gid", divisions=[int(v) for v in bounds],
+                                       shuffle_method=self._shuffle)
+            values = by_chunk.map_partitions(_check_block, bounds,
+                                             meta=pd.Series(np.empty(0, np.int64), name="cn"))
+            return values.to_dask_array(lengths=[int(v) for v in np.diff(bounds)])
+        nc = len(bounds) - 1
+        parts = [delayed(_domain_coordination_split, nout=nc, pure=True)(self.plan, inp,
+                                                                          bounds)
                  for inp in self._inputs]
         blocks = []
         for c in range(nc):
@@ -656,7 +796,14 @@ class DomainSearch:
         edges : (m + 1,) ndarray of float64
         """
         edges = _edges(bins, self.reach)
-        parts = [da.from_delayed(p, shape=(len(edges) - 1,), dtype=np.int64)
+        nb = len(edges) - 1
+        if self._routed is not None:
+            _, pd = _dataframe()
+            counts = self._routed.map_partitions(_part_histogram, self.plan, edges,
+                                                 meta=pd.Series(np.empty(0, np.int64)))
+            arr = counts.to_dask_array(lengths=[nb] * self.n_domains)
+            return arr.reshape(self.n_domains, nb).sum(axis=0), edges
+        parts = [da.from_delayed(p, shape=(nb,), dtype=np.int64)
                  for p in self._per_domain(_domain_histogram, edges)]
         return da.stack(parts).sum(axis=0), edges
 

@@ -133,7 +133,7 @@ class TestThreaded:
     def test_reductions_equal_numpy(self, kind):
         x, reach, cell, pbc = _frame(kind, seed=3)
         pairs, d = _single(x, reach, cell, pbc)
-        ds = _search(_chunked(x, "even"), reach, cell, pbc, domains=(2, 2, 2))
+        ds = _search(_chunked(x, "even"), reach, cell, pbc, domains=(2, 2, 2)).persist()
         cn = ds.coordination_numbers()
         assert cn.chunks == ((97,) * (len(x) // 97) + ((len(x) % 97,) if len(x) % 97 else ()),)
         np.testing.assert_array_equal(cn.compute(), _coordination(pairs, len(x)))
@@ -201,7 +201,7 @@ class TestThreaded:
         ds = gdask.DomainSearch(x, cutoff=cutoff, cell=cell, particles_per_domain=100)
         assert ds.n_domains >= len(x) / 100
         assert ds.n_domains < 2 * -(-len(x) // 100) + 1
-        assert sum(ds.domain_sizes) >= len(x)
+        assert sum(ds.domain_sizes()) >= len(x)
         _assert_same_pairs(ds.pairs().compute(), *_single(x, cutoff, cell, None))
 
     def test_errors_name_the_argument(self):
@@ -288,6 +288,8 @@ class TestLocalCluster:
                          domains=None if chunking == "numpy" else (2, 1, 2))
             if chunking == "numpy":
                 assert ds.n_domains == n_workers  # automatic: one per worker here
+            else:
+                ds.persist()
             df = client.compute(ds.pairs()).result()
             _assert_same_pairs(df, pairs, d)
             cn = client.compute(ds.coordination_numbers()).result()
@@ -455,3 +457,10 @@ class TestCommandLine:
         with pytest.raises(ValueError, match="GRANULARSAP_DOMAIN_PARTICLES must be a positive"):
             compute_contacts(traj, tmp_path / "x.h5", ContactParams(cutoff=1.6),
                              scheduler=client.scheduler.address)
+
+
+def test_docstring_examples():
+    import doctest
+
+    result = doctest.testmod(gdask, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    assert result.failed == 0 and result.attempted > 0
