@@ -444,11 +444,12 @@ class _Search:
                 times):
         """A frame without a rebuild margin: pairs straight from the column sweep.
 
-        Pass 1 tests every candidate and keeps the outcomes as bit masks (one
-        64-bit word per run of up to 64 candidates, in regions per chunk sized
-        from the last frame; a chunk that needs more is counted again), pass 2
-        writes the pairs whose bits are set into the output buffers.  No
-        Verlet list is kept."""
+        Pass 1 tests every candidate and keeps, for each run of up to 64
+        candidates with a pair among them, a record (the 64-bit mask of the
+        pairs, the particle, the first candidate, the lattice shift) in regions
+        per chunk sized from the last frame (a chunk that needs more is swept
+        again); pass 2 writes the pairs of the records into the output buffers.
+        No Verlet list is kept."""
         t0 = time.perf_counter()
         n_chunks = len(geometry[0]) - 1
         self._direct_done = True
@@ -461,40 +462,43 @@ class _Search:
         q = self.quantities
         counts = np.zeros(n_chunks, np.int64)
         tested = np.zeros(n_chunks, np.int64)
-        offsets = np.zeros(n_chunks, np.int64)
         wneed = np.zeros(n_chunks, np.int64)
         rows = np.diff(self._chunk_rows)
         wcap = getattr(self, "_wcap", None)
         if wcap is None or len(wcap) != n_chunks:
-            wcap = rows * (2 * len(stencil) + 4) + 64
+            wcap = rows * (len(stencil) + 3) + 64
         todo = np.ones(n_chunks, np.bool_)
-        settings = (diag, stencil, rmax, reach, inv_w2, not minimum, skin, strict, uniform,
-                    x2, self._perm, self._ks, "d" in q, "D" in q, "S" in q)
-        self._alloc_output(0)
-        outputs = (self._out_p, self._out_d, self._out_v, self._out_s)
+        tests = (diag, stencil, rmax, reach, inv_w2, not minimum, skin, strict, uniform, x2)
         while True:
             wstart = np.zeros(n_chunks, np.int64)
             wstart[1:] = np.cumsum(wcap)[:-1]
             size = int(wcap.sum())
-            words = getattr(self, "_words", None)
-            if words is None or len(words) < size:
-                words = self._words = np.empty(size + size // 8, np.uint64)
+            if getattr(self, "_words", None) is None or len(self._words) < size:
+                size += size // 8
+                self._words = np.empty(size, np.uint64)
+                self._rec_p = np.empty(size, np.int32)
+                self._rec_q = np.empty(size, np.int32)
+                self._rec_s = np.empty(size, np.int32)
                 todo[:] = True
-            self._kern.direct(False, *geometry, *settings, offsets, counts, tested, *outputs,
-                              words, wstart, wcap, wneed, todo)
+            records = (self._words, self._rec_p, self._rec_q, self._rec_s)
+            self._kern.direct_count(*geometry, *tests, *records, wstart, wcap, counts, tested,
+                                    wneed, todo)
             over = wneed > wcap
             if not over.any():
                 break
             wcap = np.where(over, wneed + wneed // 8 + 64, wcap)
             todo = over
         self._wcap = np.maximum(wcap, wneed + wneed // 8 + 64)
+        offsets = np.zeros(n_chunks, np.int64)
         offsets[1:] = np.cumsum(counts)[:-1]
         total = int(counts.sum())
         t1 = time.perf_counter()
         self._alloc_output(total)
-        outputs = (self._out_p, self._out_d, self._out_v, self._out_s)
-        self._kern.direct(True, *geometry, *settings, offsets, counts, tested, *outputs,
-                          words, wstart, wcap, wneed, todo)
+        (_, _, _, _, _, xs, ys, zs, rs, ls, use_label, cell) = geometry[1:]
+        self._kern.direct_fill(wstart, wneed, offsets, *records, xs, ys, zs, rs, ls, use_label,
+                               cell, diag, not minimum, skin, strict, uniform, x2, self._perm,
+                               self._ks, "d" in q, "D" in q, "S" in q, self._out_p,
+                               self._out_d, self._out_v, self._out_s)
         self._direct_total = total
         times["count"] = t1 - t0
         times["fill"] = time.perf_counter() - t1

@@ -521,15 +521,15 @@ def _pair_test(q, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az, bx, by, bz
 
 
 @jit
-def _sweep_chunk(fill, c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label,
+def _sweep_chunk( c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label,
                  cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform,
-                 x2, perm, kw, want_d, want_vec, want_shift, o, out_p, out_d, out_v, out_s,
-                 words, wbase, wcap):
-    """Pass 1 (``fill`` False): test every candidate of the columns ``[c_lo, c_hi)``
-    and keep the outcome as bit masks, one 64-bit word per run of up to 64
-    candidates, in ``words[wbase:wbase + wcap]``; returns (pairs, candidates,
-    words needed).  Pass 2 walks the same runs and writes only the pairs whose
-    bits are set, from slot ``o``.
+                 x2, words, rec_p, rec_q, rec_s, wbase, wcap):
+    """Pass 1 of a direct frame: test every candidate of the columns
+    ``[c_lo, c_hi)`` and keep the outcome as records (``records_fill`` reads
+    them): a 64-bit mask of the pairs found among up to 64 consecutive
+    candidates, with the particle, the first candidate and the lattice shift.
+    Records with no pair are not kept.  Writes at most ``wcap`` records from
+    ``wbase``; returns (pairs, candidates, records needed).
 
     The sweep of ``_build_chunk`` with the loops turned inside out: for each
     column of the stencil, two pointers walk it while ``p`` walks its own
@@ -543,6 +543,8 @@ def _sweep_chunk(fill, c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls,
     cnt = 0
     tested = 0
     w = 0
+    fast = diag and uniform and not use_label
+    loose = 1.0 + 1e-12
     p2 = pbc[2]
     n_st = stencil.shape[0]
     dmax = (2.0 * rmax + reach) * inv_w2
@@ -634,7 +636,6 @@ def _sweep_chunk(fill, c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls,
                 zp = zs[p]
                 rp = rs[p]
                 lp = ls[p] if use_label else 0
-                ip = perm[p]
                 # runs of one shift: (q, k) .. (hi2, k), (lo2, k + 1) .. , .. (qh, kh)
                 qa = q
                 ka = k
@@ -646,71 +647,142 @@ def _sweep_chunk(fill, c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls,
                     tested += qb - qa
                     for base in range(qa, qb, 64):
                         top = min(base + 64, qb)
-                        if not fill:
-                            word = np.uint64(0)
+                        word = np.uint64(0)
+                        if fast:
+                            # the common case written out, so that it vectorises
                             for q2 in range(base, top):
+                                dx = (xs[q2] - xp) + ax
+                                dy = (ys[q2] - yp) + by
+                                dz = (zs[q2] - zp) + cz
+                                ok = ((dx * dx + dy * dy + dz * dz <= x2)
+                                      & ((p != q2) | self_images))
+                                word |= np.uint64(ok) << np.uint64(q2 - base)
+                        else:
+                            # a vectorised superset first (squared, a relative hair
+                            # wide), then the exact test on the few bits it sets
+                            if diag:
+                                for q2 in range(base, top):
+                                    dx = (xs[q2] - xp) + ax
+                                    dy = (ys[q2] - yp) + by
+                                    dz = (zs[q2] - zp) + cz
+                                    thr = rp + rs[q2] + skin
+                                    ok = dx * dx + dy * dy + dz * dz <= thr * thr * loose
+                                    word |= np.uint64(ok) << np.uint64(q2 - base)
+                            else:
+                                for q2 in range(base, top):
+                                    dx = (((xs[q2] - xp) + ax) + bx) + cx
+                                    dy = (((ys[q2] - yp) + ay) + by) + cy
+                                    dz = (((zs[q2] - zp) + az) + bz) + cz
+                                    thr = rp + rs[q2] + skin
+                                    ok = dx * dx + dy * dy + dz * dz <= thr * thr * loose
+                                    word |= np.uint64(ok) << np.uint64(q2 - base)
+                            bits = word
+                            while bits:
+                                t = cttz(bits)
+                                bits &= bits - np.uint64(1)
+                                q2 = base + np.int64(t)
                                 ok, d2, dx, dy, dz = _pair_test(
                                     q2, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az,
                                     bx, by, bz, cx, cy, cz, xp, yp, zp, rp, lp, self_images,
                                     skin, strict, uniform, x2)
-                                word |= np.uint64(ok) << np.uint64(q2 - base)
-                                cnt += np.int64(ok)
+                                if not ok:
+                                    word &= ~(np.uint64(1) << t)
+                        if word:
                             if w < wcap:
-                                words[wbase + w] = word
+                                r = wbase + w
+                                words[r] = word
+                                rec_p[r] = p
+                                rec_q[r] = base
+                                rec_s[r] = _encode(s0, s1, ka)
                             w += 1
-                            continue
-                        word = words[wbase + w]
-                        w += 1
-                        while word:
-                            q2 = base + np.int64(cttz(word))
-                            word &= word - np.uint64(1)
-                            ok, d2, dx, dy, dz = _pair_test(
-                                q2, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az, bx,
-                                by, bz, cx, cy, cz, xp, yp, zp, rp, lp, self_images, skin,
-                                strict, uniform, x2)
-                            iq = perm[q2]
-                            flip = iq < ip
-                            out_p[o, 0] = min(ip, iq)
-                            out_p[o, 1] = max(ip, iq)
-                            if want_d:
-                                out_d[o] = math.sqrt(d2)
-                            if want_vec:
-                                _store3(out_v, o, dx, dy, dz, flip)
-                            if want_shift:
-                                _store3(out_s, o, s0 - kw[q2, 0] + kw[p, 0],
-                                        s1 - kw[q2, 1] + kw[p, 1], ka - kw[q2, 2] + kw[p, 2],
-                                        flip)
-                            o += 1
-                            cnt += 1
+                            cnt += _popcount(word)
                     qa = lo2
                     ka += 1
     return cnt, tested, w
 
+@ijit
+def _popcount(word):
+    c = 0
+    while word:
+        word &= word - np.uint64(1)
+        c += 1
+    return c
+
+
+@jit
+def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls, use_label,
+                  cell, diag, self_images, skin, strict, uniform, x2, perm, kw, want_d,
+                  want_vec, want_shift, out_p, out_d, out_v, out_s):
+    """Pass 2 of a direct frame: write the pairs of records ``[r_lo, r_hi)`` from
+    slot ``o`` (rows as ``narrow_fill``'s)."""
+    for r in range(r_lo, r_hi):
+        p = np.int64(rec_p[r])
+        base = np.int64(rec_q[r])
+        s0, s1, s2 = _decode(rec_s[r])
+        ax = s0 * cell[0, 0]
+        ay = s0 * cell[0, 1]
+        az = s0 * cell[0, 2]
+        bx = s1 * cell[1, 0]
+        by = s1 * cell[1, 1]
+        bz = s1 * cell[1, 2]
+        cx = s2 * cell[2, 0]
+        cy = s2 * cell[2, 1]
+        cz = s2 * cell[2, 2]
+        xp = xs[p]
+        yp = ys[p]
+        zp = zs[p]
+        rp = rs[p]
+        lp = ls[p] if use_label else 0
+        ip = perm[p]
+        word = words[r]
+        while word:
+            q = base + np.int64(cttz(word))
+            word &= word - np.uint64(1)
+            ok, d2, dx, dy, dz = _pair_test(
+                q, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az, bx, by, bz, cx, cy,
+                cz, xp, yp, zp, rp, lp, self_images, skin, strict, uniform, x2)
+            iq = perm[q]
+            flip = iq < ip
+            out_p[o, 0] = min(ip, iq)
+            out_p[o, 1] = max(ip, iq)
+            if want_d:
+                out_d[o] = math.sqrt(d2)
+            if want_vec:
+                _store3(out_v, o, dx, dy, dz, flip)
+            if want_shift:
+                _store3(out_s, o, s0 - kw[q, 0] + kw[p, 0], s1 - kw[q, 1] + kw[p, 1],
+                        s2 - kw[q, 2] + kw[p, 2], flip)
+            o += 1
+    return o
+
 
 @pjit
-def direct(fill, chunk_cols, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell, diag,
-           stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform, x2, perm, kw,
-           want_d, want_vec, want_shift, offsets, counts, tested, out_p, out_d, out_v, out_s,
-           words, wstart, wcap, wneed, todo):
-    """Pairs in range of this frame straight from the column sweep (no Verlet
-    list).  Pass 1 (``fill`` False) counts each chunk marked in ``todo`` into
-    ``counts`` and its mask words into ``wneed`` (kept when they fit ``wcap``);
-    pass 2 writes chunk ``c``'s pairs from ``offsets[c]``, rows as
-    ``narrow_fill``'s."""
+def direct_count(chunk_cols, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell,
+                 diag, stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform, x2,
+                 words, rec_p, rec_q, rec_s, wstart, wcap, counts, tested, wneed, todo):
+    """Pass 1 of a direct frame (no Verlet list) for every chunk marked in
+    ``todo``: its pairs into ``counts``, its records into ``wneed`` (kept when
+    they fit its ``wcap``)."""
     n_chunks = chunk_cols.shape[0] - 1
     for c in numba.prange(n_chunks):
-        if not fill and not todo[c]:
+        if not todo[c]:
             continue
-        cnt, tst, w = _sweep_chunk(
-            fill, chunk_cols[c], chunk_cols[c + 1], start, nb0, nb1, pbc, tz, xs, ys, zs, rs,
-            ls, use_label, cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict,
-            uniform, x2, perm, kw, want_d, want_vec, want_shift, offsets[c], out_p, out_d,
-            out_v, out_s, words, wstart[c], wcap[c])
-        if not fill:
-            counts[c] = cnt
-            tested[c] = tst
-            wneed[c] = w
+        counts[c], tested[c], wneed[c] = _sweep_chunk(
+            chunk_cols[c], chunk_cols[c + 1], start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls,
+            use_label, cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict,
+            uniform, x2, words, rec_p, rec_q, rec_s, wstart[c], wcap[c])
 
+
+@pjit
+def direct_fill(wstart, wneed, offsets, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
+                use_label, cell, diag, self_images, skin, strict, uniform, x2, perm, kw,
+                want_d, want_vec, want_shift, out_p, out_d, out_v, out_s):
+    """Pass 2 of a direct frame: chunk ``c``'s pairs from ``offsets[c]``."""
+    for c in numba.prange(wstart.shape[0]):
+        _records_fill(wstart[c], wstart[c] + wneed[c], offsets[c], words, rec_p, rec_q,
+                      rec_s, xs, ys, zs, rs, ls, use_label, cell, diag, self_images, skin,
+                      strict, uniform, x2, perm, kw, want_d, want_vec, want_shift, out_p,
+                      out_d, out_v, out_s)
 
 # ------------------------------------------------------------ Verlet frames
 
@@ -837,5 +909,5 @@ def _twin(kernel):
 
 #: the parallel kernels of this module, compiled serially (same names)
 serial = SimpleNamespace(**{name: _twin(globals()[name]) for name in (
-    "wrap", "wrap_sorted", "sort_columns", "gather", "build", "direct", "narrow_count",
-    "narrow_fill")})
+    "wrap", "wrap_sorted", "sort_columns", "gather", "build", "direct_count",
+    "direct_fill", "narrow_count", "narrow_fill")})
