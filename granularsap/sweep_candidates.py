@@ -47,6 +47,8 @@ ZERO_SHIFT = gk.ZERO
 _GUARD = 64 * np.finfo(np.float64).eps
 #: boxes the sweep handles at most
 _MAX_BOXES = (1 << 30) - 1
+#: box pairs per chunk of the row layout at least (chunks never exceed threads)
+_CHUNK_PAIRS = 65536
 
 
 def encode_shift(s0, s1, s2):
@@ -271,7 +273,7 @@ class SweepCandidates:
         vstart = np.empty(n, np.int64)
         vstop = np.empty(n, np.int64)
         n_overlaps = len(pairs)
-        n_chunks = max(1, min(numba.get_num_threads(), n_overlaps // 65536))
+        n_chunks = max(1, min(numba.get_num_threads(), n_overlaps // _CHUNK_PAIRS))
         cnt = np.empty((n_chunks, n), np.int64)
         sel = (self_images, spheres, ws, gpos, half, 2.0 * guard, labels, use_labels)
         gk.image_counts(pairs, n, owner, gcode, *sel, cnt, True)
@@ -292,7 +294,7 @@ class SweepCandidates:
         sap = self._sap.stats
         self.stats = {
             "n": n, "ghosts": n_ghosts, "boxes": n + n_ghosts, "overlaps": n_overlaps,
-            "candidates": int(total), "guard": guard,
+            "candidates": int(total), "guard": guard, "layout_chunks": n_chunks,
             "sweep_candidates_tested": sap.get("candidates_tested"),
             "axes": sap.get("axes"), "path": sap.get("path"),
             "seconds": {"ghosts": t1 - t0, "sweep": t2 - t1, "layout": t3 - t2,

@@ -377,6 +377,23 @@ def test_one_and_two_threads_give_the_same_list():
     check(ws[:120], half[:120], cell, np.ones(3, bool), True, n_threads=2)
 
 
+def test_layout_in_several_chunks(monkeypatch):
+    """The row layout split into per-thread chunks gives the same arrays."""
+    rng = _rng(13)
+    cell = np.array([[3.0, 0, 0], [0.6, 3.2, 0], [0.3, -0.4, 2.9]])
+    ws = _wrap(rng.random((90, 3)) @ cell, cell, True)
+    half = rng.random(90) * 1.4
+    one = sweep_candidates(ws, half, cell, np.ones(3, bool), True, n_threads=2)
+    monkeypatch.setattr(scmod, "_CHUNK_PAIRS", 1)
+    sc = SweepCandidates(n_threads=2)
+    many = sc.build(ws, half, cell, np.ones(3, bool), True)
+    assert sc.stats["layout_chunks"] == 2
+    for u, v in zip(one, many, strict=True):
+        assert np.array_equal(u, v)
+    check(ws, half, cell, np.ones(3, bool), True, n_threads=2)
+    check(ws[:40], half[:40], cell, np.ones(3, bool), False, n_threads=2, spheres=True)
+
+
 def test_stateful_frames_and_stats():
     rng = _rng(8)
     cell = 5.0 * np.eye(3)
