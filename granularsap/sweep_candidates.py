@@ -35,6 +35,7 @@ import numpy as np
 from ._numba import num_threads
 from ._validate import as_coords, as_vector, check_n_threads
 from .api import SweepAndPrune
+from .cell import Cell
 from .kernels import ghosts as gk
 
 __all__ = ["MAX_SHIFT", "SweepCandidates", "decode_shift", "encode_shift", "sweep_candidates"]
@@ -105,6 +106,9 @@ def _as_cell(cell, pbc):
     if not pbc_arr.any():
         return np.eye(3), np.eye(3), pbc_arr
     norms = np.linalg.norm(m, axis=1)
+    if np.any((norms == 0) & ~pbc_arr) and np.all(norms[pbc_arr] > 0):
+        m = np.array(Cell(m, pbc_arr).full_matrix)  # zero rows of open axes completed
+        norms = np.linalg.norm(m, axis=1)
     det = abs(float(np.linalg.det(m)))
     if not det > 1e-12 * max(float(norms.max()), 1.0) ** 3:
         raise ValueError(f"cell must be non-degenerate (positive volume), got {m.tolist()}; "
@@ -239,10 +243,13 @@ class SweepCandidates:
             guard = _GUARD * (bound + hmax) + np.finfo(np.float64).tiny
             if np.any(np.where(pbc, reach_layers, 0.0) > MAX_SHIFT):
                 c = int(np.argmax(np.where(pbc, reach_layers, 0.0)))
+                hint = ("; ws must be wrapped into the cell along periodic axes (their "
+                        f"fractional span along axis {c} is {hi[c] - lo[c]:.6g})"
+                        if hi[c] - lo[c] > 1.0 + 1e-6 else "; use a larger cell or smaller "
+                        "ranges")
                 raise ValueError(
                     f"the cube reach 2 * max(half) = {2.0 * hmax:.17g} needs lattice shifts "
-                    f"beyond {MAX_SHIFT} cell vectors along axis {c}; use a larger cell "
-                    "or smaller ranges")
+                    f"beyond {MAX_SHIFT} cell vectors along axis {c}{hint}")
             slack = 1e-9 * (1.0 + np.maximum(np.abs(lo), np.abs(hi)))
             extra = hmax + 2.0 * guard
             counts = np.empty(n, np.int64)

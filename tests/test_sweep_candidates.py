@@ -457,8 +457,27 @@ def test_bad_input():
         sweep_candidates(ws, np.zeros(3), cell, pbc, 1)
     with pytest.raises(TypeError, match="spheres"):
         sweep_candidates(ws, np.zeros(3), cell, pbc, True, spheres=None)
-    with pytest.raises(ValueError, match="lattice shifts"):
+    with pytest.raises(ValueError, match="lattice shifts.*larger cell"):
         sweep_candidates(ws, np.full(3, 400.0), cell, pbc, True)
+    far = np.array([[0.0, 0, 0], [5000.0, 0, 0], [0.5, 0.5, 0.5]])
+    with pytest.raises(ValueError, match="wrapped"):
+        sweep_candidates(far, np.zeros(3), cell, pbc, True)
+    with pytest.raises(ValueError, match="non-degenerate"):
+        sweep_candidates(ws, np.zeros(3), np.diag([1.0, 0.0, 1.0]), pbc, False)
+
+
+def test_zero_rows_of_open_axes_are_completed():
+    rng = _rng(14)
+    m = np.array([[3.0, 0, 0], [0.0, 0.0, 0.0], [0.5, 0.4, 3.2]])
+    pbc = np.array([True, False, True])
+    full = np.array(Cell(m, pbc).full_matrix)
+    ws = Cell(m, pbc).wrap(rng.random((30, 3)) * 4)
+    half = rng.random(30) * 0.7
+    a = sweep_candidates(ws, half, m, pbc, True)
+    b = sweep_candidates(ws, half, full, pbc, True)
+    for u, v in zip(a, b, strict=True):
+        assert np.array_equal(u, v)
+    check(ws, half, full, pbc, True)
 
 
 def _spec_component(wq, wp, s, cell, c):
