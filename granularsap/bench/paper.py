@@ -169,7 +169,7 @@ def _drive(engine, scene, frames, threads, check_every, progress, label):
         rec = {"frame": f, "wall": wall, **_phases(st), "pairs": len(pairs),
                "tested": st["candidates_tested"], "axes": list(st["axes"]),
                "dispersion": {str(k): v for k, v in st["dispersion"].items()},
-               "swaps": st["swaps"]}
+               "swaps": st["swaps"], "path": st.get("path")}
         if check_every and f % check_every == 0:
             ref = SweepAndPrune(path="parallel", n_threads=1).update(lower, upper)
             rec["checked"] = bool(len(ref) == len(pairs) and np.array_equal(
@@ -183,6 +183,14 @@ def _drive(engine, scene, frames, threads, check_every, progress, label):
                      f"{len(pairs)} pairs")
         scene.step()
     return records, engine
+
+
+def _paths(records):
+    """``"columns 9, parallel 1"``: the engine's path per frame, counted."""
+    counts = {}
+    for r in records:
+        counts[r.get("path")] = counts.get(r.get("path"), 0) + 1
+    return ", ".join(f"{p} {c}" for p, c in sorted(counts.items(), key=lambda x: -x[1]))
 
 
 def _canon(pairs):
@@ -235,7 +243,7 @@ def uniform_experiment(n, density, frames, threads, seed, progress, sequential=T
                (max(r["dispersion"].values()) for r in records[1:]), default=0.0),
            "engine_bytes_per_box": engine.nbytes / n,
            "staging_bytes_per_box": engine.staging_nbytes / n,
-           "per_frame": records}
+           "paths": _paths(records), "per_frame": records}
     out["speedup_threads"] = one_steady["total"] / steady["total"]
     out["speedup_pairing"] = one_steady["pairing"] / max(steady["pairing"], 1e-12)
     if sequential:
@@ -276,7 +284,7 @@ def clustering_experiment(kind, n, frames, threads, seed, progress):
         swaps = [r["frame"] for i, r in enumerate(rec) if i and r["swaps"] > rec[i - 1]["swaps"]]
         summary[label] = {"before": before, "during": during, "ratio": during / before,
                           "swap_frames": swaps, "pairs_max": max(r["pairs"] for r in rec),
-                          "per_frame": rec}
+                          "paths": _paths(rec), "per_frame": rec}
     return summary
 
 
@@ -367,7 +375,7 @@ def run_paper(args):
     results = {"machine": _machine(), "threads": threads, "frames": frames, "uniform": []}
     header = (f"{'n':>8} {'d':>5} {'sort':>7} {'cand':>7} {'pair':>7} {'total':>7} "
               f"{'fresh':>7} {'pairs/frame':>12} {'D max':>7} {'x1thr':>6} {'xpair':>6} "
-              f"{'xAlg1':>6} {'B/box':>6}")
+              f"{'xAlg1':>6} {'B/box':>6}  path (frames)")
     rows = []
     for n in sizes:
         for d in densities:
@@ -382,6 +390,7 @@ def run_paper(args):
                         f"{r['speedup_threads']:>6.2f} {r['speedup_pairing']:>6.2f} "
                         f"{r.get('speedup_vs_sequential', float('nan')):>6.1f} "
                         f"{r['engine_bytes_per_box']:>6.0f}")
+            rows[-1] += f"  {r['paths']}"
             print(header + "\n" + rows[-1], flush=True)
     cl_n = 1 << 14 if quick else 1 << 19
     pl_side = 128 if quick else 750
@@ -393,16 +402,17 @@ def run_paper(args):
     print("\nUniform boxes, steady state, milliseconds per frame "
           f"({threads} threads; x1thr: speedup over one thread of the same code; xpair: the "
           "same for the pairing phase; xAlg1: over the sequential Algorithm 1; B/box: engine "
-          "working memory)")
+          "working memory; path: how many frames took each path, SweepAndPrune(path='auto'))")
     print(header)
     for row in rows:
         print(row)
     print("\nClustering (total ms per frame, median; 'paper': one shard, the paper's "
           "Algorithm 4 exactly)")
-    print(f"{'scenario':<26} {'before':>8} {'during':>8} {'ratio':>6}  swaps at frames")
+    print(f"{'scenario':<26} {'before':>8} {'during':>8} {'ratio':>6}  swaps at frames; "
+          "paths (frames)")
     for label, s in results["clustering"].items():
         print(f"{label:<26} {s['before'] * 1e3:>8.1f} {s['during'] * 1e3:>8.1f} "
-              f"{s['ratio']:>6.2f}  {s['swap_frames'][:5]}")
+              f"{s['ratio']:>6.2f}  {s['swap_frames'][:5]}; {s['paths']}")
     results["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     with open(json_path, "w") as fh:
         json.dump(results, fh, indent=1)
