@@ -22,7 +22,10 @@ A pair image ``(p, q, S)`` is *required* when every Cartesian component of
 ``D = (ws[q] - ws[p]) + S0 cell[0] + S1 cell[1] + S2 cell[2]`` satisfies
 ``|D_c| <= half[p] + half[q]``; every required image is returned, exactly
 once (``(p, q, S)`` and ``(q, p, -S)`` are one image), and the only extra
-ones are those within the rounding guard of that test.
+ones are those within the rounding guard of that test.  ``spheres=True``
+keeps only images with ``|D| <= half[p] + half[q]`` (the column sweep's build
+test) and ``labels`` drops images of one rigid body.  See
+``docs/sweep-candidates.md`` for measured costs against the column sweep.
 """
 
 from __future__ import annotations
