@@ -26,9 +26,11 @@ gathered for them, nor for pair counts and pair-distance histograms (summed
 over domains, each pair counted once, on owned pairs only).
 
 Cost: the data move twice, particles from the input chunks to the domains
-(``chunks x domains`` small pieces) and, for per-particle results, back to
-chunks aligned with the input.  Nothing in the graph is as large as a
-domain's pairs unless they are asked for.
+and, for per-particle results, back to chunks aligned with the input.  A
+dask.array frame does both in one Dask DataFrame shuffle each (p2p on a
+``distributed`` cluster), so the graph grows with chunks + domains; a NumPy
+frame is routed in the calling process and scattered, one input per domain.
+Nothing in the graph is as large as a domain's pairs unless they are asked for.
 
 Needs ``pip install "granularsap[dask]"`` (dask.distributed, dask.dataframe,
 pyarrow for Parquet).
@@ -115,7 +117,6 @@ class _Plan:
     halo: tuple               # per axis, in the units of u
     n: int
     n_threads: object
-    has_labels: bool
 
     @property
     def n_domains(self):
@@ -125,14 +126,6 @@ class _Plan:
         if self.kind == "cutoff":
             return NeighborSearch(self.cutoff, quantities="Pd", n_threads=self.n_threads)
         return ContactSearch(skin=self.skin, quantities="Pd", n_threads=self.n_threads)
-
-    def domain_box(self, d):
-        """Lower and upper bounds (in u) of domain ``d``."""
-        k = self.grid
-        idx = np.unravel_index(d, k)
-        lo = [self.lo[c] + self.span[c] * idx[c] / k[c] for c in range(3)]
-        hi = [self.lo[c] + self.span[c] * (idx[c] + 1) / k[c] for c in range(3)]
-        return lo, hi
 
 
 def _check_finite(pos, offset, name="positions"):
@@ -629,8 +622,7 @@ class DomainSearch:
                           cutoff=0.0 if cutoff is None else cutoff, skin=skin, box=box,
                           frac_cell=frac_cell, pbc=pbc_u, lo=tuple(float(v) for v in lo),
                           span=tuple(float(v) for v in span), grid=grid,
-                          halo=tuple(float(v) for v in halo), n=n, n_threads=n_threads,
-                          has_labels=lab is not None)
+                          halo=tuple(float(v) for v in halo), n=n, n_threads=n_threads)
         # ------------------------------------------------- route to domains
         self._shuffle = "p2p" if self.client is not None else "tasks"
         self._routed = None
