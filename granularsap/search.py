@@ -45,6 +45,11 @@ __all__ = ["ContactSearch", "NeighborSearch"]
 
 _QUANTITIES = "Pijd DS".replace(" ", "")
 _LAYOUTS = ("pairs", "csr")
+_PATHS = ("auto", "columns", "sweep")
+#: ``path="auto"`` tries the paper's sweep when the column sweep tests more
+#: candidates per pair than this, and measures both again after this many builds
+_SWEEP_TRIAL_CPP = 25.0
+_RETRIAL = 64
 _IMAGES = ("minimum", "all")
 #: relative guard on the Verlet range against rounding (the exact test decides)
 _GUARD = 64 * np.finfo(np.float64).eps
@@ -52,6 +57,7 @@ _GUARD = 64 * np.finfo(np.float64).eps
 _CHUNK = 2048
 _MAX_CHUNKS = 1024
 _MAX_BINS = 1 << 16
+_NO_BIG = np.zeros(0, np.uint8)
 #: below this many particles one thread runs (a parallel region costs more)
 _PARALLEL_MIN = 20000
 
@@ -85,6 +91,47 @@ def _square_bound(thr, strict):
     return x2
 
 
+def _level_split(rad, rmax, reach, n, volume):
+    """Radius up to which particles are "small" on a two-level column grid, or None
+    for one level.
+
+    Cost model of one frame, per particle: a visit of a stencil column costs
+    about as much as ten candidates (setting up the window and leaving its
+    loops).  Small particles pair among themselves on columns one range
+    ``w = 2 r + reach`` wide (5 visits, about ``4.5 rho w^3`` candidates), each
+    large one visits a full stencil of the range ``R = 2 rmax + reach``
+    (``(2 ceil(R / w) + 1)^2`` visits, about ``rho (2 R + w)^2 2 R``
+    candidates).  The split is the radius quantile of least cost, kept only if
+    it saves a quarter.
+    """
+    if n < 1000 or not volume > 0 or not rmax > 0:
+        return None
+    rho = n / volume
+    big_range = 2.0 * rmax + reach
+    visit = 10.0
+
+    def cost(r_c, n_big):
+        w = 2.0 * r_c + reach
+        small = 4.5 * rho * w ** 3 + 5 * visit
+        layers = math.ceil(big_range / w)
+        large = rho * (2.0 * big_range + w) ** 2 * 2.0 * big_range + (
+            (2 * layers + 1) ** 2 * visit)
+        return small * (n - n_big) + large * n_big
+
+    single = cost(rmax, 0)
+    best, choice = single, None
+    sorted_r = np.sort(rad)
+    for qtl in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99):
+        r_c = float(sorted_r[int(qtl * (n - 1))])
+        if not 0.0 < r_c < rmax:
+            continue
+        n_big = n - int(np.searchsorted(sorted_r, r_c, side="right"))
+        c = cost(r_c, n_big)
+        if c < best:
+            best, choice = c, r_c
+    return choice if best < single * 0.75 else None
+
+
 def _resolve_cell(box, pbc):
     """(cell matrix, pbc) of ``box`` and ``pbc``: the Cell's full matrix (zero rows of
     open axes completed), or None for open boundaries."""
@@ -103,7 +150,7 @@ class _Search:
     """What NeighborSearch and ContactSearch share: state, rebuilds, outputs."""
 
     def __init__(self, *, rebuild_margin, quantities, layout, n_threads, periodic_images,
-                 include_cutoff):
+                 include_cutoff, path):
         self.rebuild_margin = as_scalar(rebuild_margin, "rebuild_margin")
         self.quantities = _check_quantities(quantities)
         if layout not in _LAYOUTS:
@@ -118,6 +165,11 @@ class _Search:
             raise TypeError(f"include_cutoff must be True or False, got {include_cutoff!r}")
         self.include_cutoff = bool(include_cutoff)
         self.n_threads = check_n_threads(n_threads)
+        if path not in _PATHS:
+            raise ValueError(f"path must be one of {', '.join(map(repr, _PATHS))}, got {path!r}")
+        self.path = path
+        self._sweeper = None
+        self._auto = {"columns": None, "sweep": None, "cpp": None, "since": 0, "key": None}
         self.stats = {}
         self._frames = 0
         self._rebuilds = 0
@@ -131,6 +183,9 @@ class _Search:
         #: which costs less than the candidates they add)
         self._split = 2
         self._split_direct = 1
+        #: two column levels for widely spread radii (direct frames): True chooses
+        #: by cost, False never, a radius forces that split
+        self._levels = True
 
     # ------------------------------------------------------------- buffers
     def _alloc_particles(self, n):
@@ -238,6 +293,9 @@ class _Search:
         key = (n, cell_k.tobytes(), pbc.tobytes(), skin, minimum, self.include_cutoff,
                labels is not None, scale)
         self._alloc_particles(n)
+        if n == 0:
+            self._path_now = "columns" if self.path == "auto" else self.path
+            self._path_reason, self._r_small = "no particles", None
         margin = self._margin
         reason = None
         if self._key != key:
@@ -278,8 +336,11 @@ class _Search:
         times["narrow"] = time.perf_counter() - t0
         result = self._results(total)
         times["total"] = time.perf_counter() - t_start
+        if reason is not None and n:
+            self._measured(tested, total, times["total"], n)
         self.stats = {
-            "frame": self._frames, "n": n, "threads": threads, "path": "column-sweep",
+            "frame": self._frames, "n": n, "threads": threads, "path": self._path_now,
+            "path_reason": self._path_reason, "levels": 1 if self._r_small is None else 2,
             "rebuilt": reason is not None, "reason": reason or "within the rebuild margin",
             "rebuilds": self._rebuilds, "max_displacement": max_disp,
             "verlet_entries": int(self._vneed.sum()) if n else 0,
@@ -316,7 +377,6 @@ class _Search:
         extent = float(np.abs(w).max()) + reach_max + self._margin
         guard = _GUARD * extent + np.finfo(np.float64).tiny
         reach = skin + self._margin + guard
-        bin_range = 2.0 * rmax + reach + guard
         widths = periodic.perpendicular_widths(cell)
         lo = np.zeros(3)
         span = np.ones(3)
@@ -324,7 +384,22 @@ class _Search:
             if not pbc[c]:
                 lo[c] = t[:, c].min()
                 span[c] = t[:, c].max() - lo[c]
+        r_small = None
+        if self._margin == 0.0 and minimum and self._levels is not False:
+            if self._levels is True:
+                memo = getattr(self, "_split_memo", None)
+                if memo is not None and memo[0] == (n, reach) and np.array_equal(memo[1], rad):
+                    r_small = memo[2]
+                else:
+                    r_small = _level_split(rad, rmax, reach, n, float(np.prod(span))
+                                           * abs(float(np.linalg.det(cell))))
+                    self._split_memo = ((n, reach), rad.copy(), r_small)
+            elif 0.0 < self._levels < rmax:  # a forced split (tests)
+                r_small = float(self._levels)
+        self._r_small = r_small
+        bin_range = 2.0 * (rmax if r_small is None else r_small) + reach + guard
         delta = bin_range / widths
+        delta_big = (2.0 * rmax + reach + guard) / widths
         nb = [1, 1]
         split = self._split_direct if self._margin == 0.0 else self._split
         for c in range(2):
@@ -341,6 +416,7 @@ class _Search:
             nb[c] = max(1, nb[c] // 2)
         inv_f = np.zeros(3)
         layers = []
+        layers_big = []
         for c in range(2):
             f = span[c] / nb[c]
             with np.errstate(over="ignore", divide="ignore"):
@@ -351,13 +427,19 @@ class _Search:
                 L = 1
             else:
                 L = math.ceil(delta[c] / f)
+            L_big = 1 if (f >= delta_big[c] or f == 0) else math.ceil(delta_big[c] / f)
             if not pbc[c]:
                 L = min(L, nb[c] - 1)
+                L_big = min(L_big, nb[c] - 1)
             layers.append(L)
+            layers_big.append(L_big)
         stencil = [(o0, o1) for o0 in range(-layers[0], layers[0] + 1)
                    for o1 in range(-layers[1], layers[1] + 1)
                    if o0 > 0 or (o0 == 0 and o1 > 0)]
         stencil = np.array(stencil, np.int64).reshape(-1, 2)
+        stencil_big = np.array([(o0, o1) for o0 in range(-layers_big[0], layers_big[0] + 1)
+                                for o1 in range(-layers_big[1], layers_big[1] + 1)],
+                               np.int64).reshape(-1, 2)
         nb0, nb1 = nb
         self._grid_shape = (nb0, nb1)
         ncol = nb0 * nb1
@@ -386,14 +468,21 @@ class _Search:
         self._chunk_rows = start[chunk_cols]
         inv_w2 = 1.0 / widths[2]
         tz = np.ascontiguousarray(self._ts[:, 2])
+        path, self._path_reason = self._choose_path(n, minimum)
+        self._path_now = path
+        if path == "sweep":
+            self._r_small = None
+            return self._sweep_build(cell, pbc, minimum, reach, use_label, n, times)
         if self._margin == 0.0:
             ws = self._ws
             geometry = (chunk_cols, start, nb0, nb1, pbc, tz, np.ascontiguousarray(ws[:, 0]),
                         np.ascontiguousarray(ws[:, 1]), np.ascontiguousarray(ws[:, 2]),
                         self._rs, self._ls, use_label, cell)
             times["build"] = 0.0
+            big = (self._rs > r_small).view(np.uint8) if r_small is not None else _NO_BIG
+            levels = (r_small is not None, big, r_small or 0.0, stencil_big)
             return self._direct(geometry, diag, stencil, rmax, reach, inv_w2, minimum, skin,
-                                rad, times)
+                                rad, times, levels)
         rows = np.diff(self._chunk_rows)
         if self._vcap is None or len(self._vcap) != n_chunks:
             if self._vcap is None:
@@ -441,7 +530,7 @@ class _Search:
         return int(tested.sum())
 
     def _direct(self, geometry, diag, stencil, rmax, reach, inv_w2, minimum, skin, rad,
-                times):
+                times, levels):
         """A frame without a rebuild margin: pairs straight from the column sweep.
 
         Pass 1 tests every candidate and keeps, for each run of up to 64
@@ -482,7 +571,7 @@ class _Search:
                 todo[:] = True
             records = (self._words, self._rec_p, self._rec_q, self._rec_s)
             self._kern.direct_count(*geometry, *tests, *records, wstart, wcap, counts, tested,
-                                    wneed, todo)
+                                    wneed, todo, *levels)
             over = wneed > wcap
             if not over.any():
                 break
@@ -503,6 +592,59 @@ class _Search:
         times["count"] = t1 - t0
         times["fill"] = time.perf_counter() - t1
         return int(tested.sum())
+
+    def _choose_path(self, n, minimum):
+        """(path, reason) of this build: forced, or chosen from what earlier builds
+        measured (candidates tested per pair, seconds per particle of each path)."""
+        if self.path != "auto":
+            return self.path, f"path={self.path!r} given"
+        a = self._auto
+        key = (n, minimum, self._margin)
+        a["since"] += 1
+        if a["key"] != key or a["since"] > _RETRIAL:
+            a.update(columns=None, sweep=None, cpp=None, since=0, key=key)
+        if not minimum:
+            return "columns", "every periodic image asked for: the column sweep wraps its stencil"
+        if a["columns"] is None:
+            return "columns", "first build: the column sweep"
+        cpp = a["cpp"]
+        if a["sweep"] is None:
+            if cpp > _SWEEP_TRIAL_CPP:
+                return "sweep", (f"trying the paper's sweep: the column sweep tested "
+                                 f"{cpp:.1f} candidates per pair")
+            return "columns", (f"the column sweep tests {cpp:.1f} candidates per pair (the "
+                               f"paper's sweep is tried above {_SWEEP_TRIAL_CPP:g})")
+        col, sw = a["columns"] * 1e9, a["sweep"] * 1e9
+        faster = "sweep" if a["sweep"] < a["columns"] else "columns"
+        return faster, (f"measured per particle: the column sweep {col:.0f} ns, the paper's "
+                        f"sweep {sw:.0f} ns")
+
+    def _measured(self, tested, pairs, seconds, n):
+        a = self._auto
+        a[self._path_now] = seconds / n
+        if self._path_now == "columns" and tested is not None:
+            a["cpp"] = tested / max(pairs, 1)
+
+    def _sweep_build(self, cell, pbc, minimum, reach, use_label, n, times):
+        """The Verlet list from the paper's Sweep and Prune over bounding cubes."""
+        from .sweep_candidates import SweepCandidates
+
+        t0 = time.perf_counter()
+        if self._sweeper is None:
+            self._sweeper = SweepCandidates(n_threads=self.n_threads)
+        half = self._rs + 0.5 * reach
+        vstart, vstop, vb, vs = self._sweeper.build(
+            self._ws, half, cell if pbc.any() else None, pbc, not minimum, spheres=True,
+            labels=self._ls if use_label else None)
+        self._vstart[:] = vstart
+        self._vstop[:] = vstop
+        self._vb, self._vs = vb, vs
+        rows = np.unique(np.concatenate([np.arange(0, n, _CHUNK), [n]])).astype(np.int64)
+        self._chunk_rows = rows
+        self._vneed = vstop[rows[1:] - 1] - vstart[rows[:-1]]
+        self._vcap = None
+        times["build"] = time.perf_counter() - t0
+        return int(self._sweeper.stats.get("sweep_candidates_tested") or len(vb))
 
     def _compact(self, need, reg_start):
         """Move the Verlet list into arrays sized to it (a first guess was large)."""
@@ -619,6 +761,16 @@ class NeighborSearch(_Search):
     n_threads : int, optional
         numba threads for each call (restored afterwards); results do not
         depend on it.
+    path : {"auto", "columns", "sweep"}, optional
+        How candidates are found when the list is built.  ``"columns"``: the
+        column sweep (a sweep along one axis inside columns over the other
+        two); ``"sweep"``: the paper's parallel bi-dimensional Sweep and
+        Prune over the particles' bounding cubes, with ghost cubes for
+        periodic images.  ``"auto"`` (default) takes the column sweep, tries
+        the paper's sweep when the column sweep tests many candidates per pair
+        (sparse, widely polydisperse frames), and keeps the faster of the two
+        as measured; ``stats["path"]`` and ``stats["path_reason"]`` say which
+        and why.  Results are the same on every path.
 
     Notes
     -----
@@ -644,11 +796,11 @@ class NeighborSearch(_Search):
     _what = "cutoff"
 
     def __init__(self, cutoff, *, rebuild_margin=0.0, quantities="Pd", layout="pairs",
-                 periodic_images="minimum", include_cutoff=True, n_threads=None):
+                 periodic_images="minimum", include_cutoff=True, n_threads=None, path="auto"):
         self.cutoff = as_scalar(cutoff, "cutoff")
         super().__init__(rebuild_margin=rebuild_margin, quantities=quantities, layout=layout,
                          n_threads=n_threads, periodic_images=periodic_images,
-                         include_cutoff=include_cutoff)
+                         include_cutoff=include_cutoff, path=path)
         self._half = None
 
     def update(self, positions, box=None, *, pbc=None, copy=False):
@@ -684,7 +836,7 @@ class ContactSearch(_Search):
     ----------
     skin : float, optional
         Contact distance added to every pair's ``r_i + r_j``.
-    rebuild_margin, quantities, layout, periodic_images, include_cutoff, n_threads
+    rebuild_margin, quantities, layout, periodic_images, include_cutoff, n_threads, path
         As for :class:`NeighborSearch` (default quantities ``'P'``).
 
     Examples
@@ -702,11 +854,11 @@ class ContactSearch(_Search):
     _what = "interaction range 2 * max(radii) + skin"
 
     def __init__(self, *, skin=0.0, rebuild_margin=0.0, quantities="P", layout="pairs",
-                 periodic_images="minimum", include_cutoff=True, n_threads=None):
+                 periodic_images="minimum", include_cutoff=True, n_threads=None, path="auto"):
         self.skin = as_scalar(skin, "skin")
         super().__init__(rebuild_margin=rebuild_margin, quantities=quantities, layout=layout,
                          n_threads=n_threads, periodic_images=periodic_images,
-                         include_cutoff=include_cutoff)
+                         include_cutoff=include_cutoff, path=path)
 
     def update(self, positions, radii, box=None, *, pbc=None, clump_ids=None, copy=False):
         """Contacts of this frame.

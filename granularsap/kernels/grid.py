@@ -521,9 +521,10 @@ def _pair_test(q, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az, bx, by, bz
 
 
 @jit
-def _sweep_chunk( c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label,
+def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label,
                  cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform,
-                 x2, words, rec_p, rec_q, rec_s, wbase, wcap):
+                 x2, words, rec_p, rec_q, rec_s, wbase, wcap, levels, big, r_small,
+                 stencil_big):
     """Pass 1 of a direct frame: test every candidate of the columns
     ``[c_lo, c_hi)`` and keep the outcome as records (``records_fill`` reads
     them): a 64-bit mask of the pairs found among up to 64 consecutive
@@ -539,6 +540,14 @@ def _sweep_chunk( c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_
     ``p``'s window; both only grow with ``p`` (the upper one is searched per
     ``p`` when ranges differ).  Between them lie runs of one lattice shift,
     each a counted loop over contiguous arrays without a branch in its body.
+
+    Two levels (``levels``): columns are sized for the pairs of particles no
+    larger than ``r_small``; the first walk pairs those among themselves
+    (windows from ``r_small``), the second walks only the large ones
+    (``big``) over the wider full stencil ``stencil_big`` and pairs them with
+    everything, a pair of two large ones being kept by its lower end.  So a
+    few large spheres widen neither the columns nor the windows of the rest
+    (the hierarchical grids of polydisperse packings).
     """
     cnt = 0
     tested = 0
@@ -546,24 +555,28 @@ def _sweep_chunk( c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_
     fast = diag and uniform and not use_label
     loose = 1.0 + 1e-12
     p2 = pbc[2]
-    n_st = stencil.shape[0]
-    dmax = (2.0 * rmax + reach) * inv_w2
     for col in range(c_lo, c_hi):
-        lo_c = start[col]
-        hi_c = start[col + 1]
-        if lo_c == hi_c:
-            continue
-        b0 = col // nb1
-        b1 = col - b0 * nb1
-        for o_st in range(-1, n_st):
+      lo_c = start[col]
+      hi_c = start[col + 1]
+      if lo_c == hi_c:
+          continue
+      b0 = col // nb1
+      b1 = col - b0 * nb1
+      for walk in range(2 if levels else 1):
+        second = walk == 1
+        st = stencil_big if second else stencil
+        n_st = st.shape[0]
+        r_win = rmax if (second or not levels) else r_small
+        dmax = (2.0 * r_win + reach) * inv_w2
+        for o_st in range(0 if second else -1, n_st):
             own = o_st < 0  # the column itself: forward in sorted order
             s0 = 0
             s1 = 0
             if own:
                 col2 = col
             else:
-                c0 = b0 + stencil[o_st, 0]
-                c1 = b1 + stencil[o_st, 1]
+                c0 = b0 + st[o_st, 0]
+                c1 = b1 + st[o_st, 1]
                 if pbc[0]:
                     s0 = c0 // nb0
                     c0 -= s0 * nb0
@@ -602,8 +615,10 @@ def _sweep_chunk( c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_
             kh = k
             khf = kf
             for p in range(lo_c, hi_c):
+                if levels and (big[p] != second):
+                    continue
                 tp = tz[p]
-                hi_v = tp + (rs[p] + rmax + reach) * inv_w2
+                hi_v = tp + (rs[p] + r_win + reach) * inv_w2
                 if own:
                     q = p + 1
                     k = 0
@@ -660,6 +675,9 @@ def _sweep_chunk( c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_
                         else:
                             # a vectorised superset first (squared, a relative hair
                             # wide), then the exact test on the few bits it sets
+                            # levels: the first walk pairs small with small, the
+                            # second large with small, and large with large from
+                            # the lower end
                             if diag:
                                 for q2 in range(base, top):
                                     dx = (xs[q2] - xp) + ax
@@ -667,6 +685,8 @@ def _sweep_chunk( c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_
                                     dz = (zs[q2] - zp) + cz
                                     thr = rp + rs[q2] + skin
                                     ok = dx * dx + dy * dy + dz * dz <= thr * thr * loose
+                                    ok = ok & ((not levels) | (big[q2] == 0)
+                                               | (second & (p < q2)))
                                     word |= np.uint64(ok) << np.uint64(q2 - base)
                             else:
                                 for q2 in range(base, top):
@@ -675,6 +695,8 @@ def _sweep_chunk( c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_
                                     dz = (((zs[q2] - zp) + az) + bz) + cz
                                     thr = rp + rs[q2] + skin
                                     ok = dx * dx + dy * dy + dz * dz <= thr * thr * loose
+                                    ok = ok & ((not levels) | (big[q2] == 0)
+                                               | (second & (p < q2)))
                                     word |= np.uint64(ok) << np.uint64(q2 - base)
                             bits = word
                             while bits:
@@ -759,7 +781,8 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
 @pjit
 def direct_count(chunk_cols, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell,
                  diag, stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform, x2,
-                 words, rec_p, rec_q, rec_s, wstart, wcap, counts, tested, wneed, todo):
+                 words, rec_p, rec_q, rec_s, wstart, wcap, counts, tested, wneed, todo,
+                 levels, big, r_small, stencil_big):
     """Pass 1 of a direct frame (no Verlet list) for every chunk marked in
     ``todo``: its pairs into ``counts``, its records into ``wneed`` (kept when
     they fit its ``wcap``)."""
@@ -770,7 +793,8 @@ def direct_count(chunk_cols, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
         counts[c], tested[c], wneed[c] = _sweep_chunk(
             chunk_cols[c], chunk_cols[c + 1], start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls,
             use_label, cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict,
-            uniform, x2, words, rec_p, rec_q, rec_s, wstart[c], wcap[c])
+            uniform, x2, words, rec_p, rec_q, rec_s, wstart[c], wcap[c], levels, big, r_small,
+            stencil_big)
 
 
 @pjit
