@@ -364,7 +364,7 @@ class TestKilledWorker:
                     deadline = time.monotonic() + 20
                     while time.monotonic() < deadline and not fut.done():
                         for addr, keys in c.processing().items():
-                            if addr in pids and any("_domain_pairs" in str(k) for k in keys):
+                            if addr in pids and any("domain_pairs" in str(k) for k in keys):
                                 os.kill(pids[addr], signal.SIGKILL)
                                 killed.append(addr)
                                 return
