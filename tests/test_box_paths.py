@@ -306,3 +306,21 @@ def test_error_unknown_path():
     with pytest.raises(ValueError, match=r"path must be one of 'auto', 'sequential', "
                                          r"'parallel', 'columns', got 'grid'"):
         SweepAndPrune(path="grid")
+
+
+def test_dense_frame_outgrows_the_region_guess():
+    """About 60 partners per box in several chunks of columns, with 500 big boxes
+    in two chunks: regions overflow on the first frame and run again."""
+    rng = np.random.default_rng(10)
+    n = 12000
+    lo = rng.random((n, 3)) * 18.0
+    hi = lo + rng.uniform(0.5, 1.5, (n, 3))
+    hi[:500] += 8.0
+    want = brute_box_overlaps(lo, hi)
+    assert len(want) > 20 * n
+    for threads in (1, 2):
+        engine = SweepAndPrune(path="columns", n_threads=threads)
+        for _ in range(2):
+            check(engine.update(lo, hi), lo, hi, want)
+        assert engine.stats["columns"]["big"] == 500
+        assert engine.stats["columns"]["chunks"] > 1
