@@ -48,8 +48,8 @@ _LAYOUTS = ("pairs", "csr")
 _PATHS = ("auto", "columns", "sweep")
 #: ``path="auto"`` tries the paper's sweep when the column sweep tests more
 #: candidates per pair than this, and measures both again after this many builds
-_SWEEP_TRIAL_CPP = 25.0
-_RETRIAL = 64
+_SWEEP_TRIAL_CPP = 50.0
+_RETRIAL = 256
 _IMAGES = ("minimum", "all")
 #: relative guard on the Verlet range against rounding (the exact test decides)
 _GUARD = 64 * np.finfo(np.float64).eps

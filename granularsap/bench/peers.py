@@ -251,18 +251,27 @@ class GranularSAPSteady(Peer):
 
         super().setup(workload, n_threads)
         margin = self.margin_fraction * workload.search_radius()
+        # pairs and distances, as a force loop needs them
         if workload.kind == "boxes":
             self.engine = granularsap.SweepAndPrune(n_threads=n_threads)
         elif workload.kind == "contacts":
-            self.engine = granularsap.ContactSearch(rebuild_margin=margin, n_threads=n_threads)
+            self.engine = granularsap.ContactSearch(rebuild_margin=margin, n_threads=n_threads,
+                                                    quantities="Pd")
         else:
             self.engine = granularsap.NeighborSearch(workload.cutoff, rebuild_margin=margin,
-                                                     quantities="P", n_threads=n_threads)
+                                                     quantities="Pd", n_threads=n_threads)
         self.rebuilds = 0
 
     def last_stats(self):
         stats = getattr(self.engine, "stats", None)
         return dict(stats) if stats else None
+
+    def note(self):
+        stats = getattr(self.engine, "stats", None) or {}
+        if "path" not in stats:
+            return None
+        levels = stats.get("levels")
+        return f"path {stats['path']}" + (f", {levels} column levels" if levels == 2 else "")
 
     def run(self, frame):
         wl = self.workload
@@ -271,9 +280,9 @@ class GranularSAPSteady(Peer):
             return self.engine.update(lower, upper)
         pos = wl.frames[frame]
         if wl.kind == "contacts":
-            pairs = self.engine.update(pos, wl.radii, wl.box)
+            pairs, _ = self.engine.update(pos, wl.radii, wl.box)
         else:
-            pairs = self.engine.update(pos, wl.box)
+            pairs, _ = self.engine.update(pos, wl.box)
         if frame > 0 and self.engine.stats.get("rebuilt"):
             self.rebuilds += 1
         return pairs
