@@ -52,6 +52,9 @@ _MAX_SIDE = 1 << 20
 #: 3 x 3 stencil needs it; wider columns mean fewer columns visited per box
 #: for more candidates in each)
 _COLUMN_WIDTH = 2.0
+#: the half stencil when the largest small side on the sweep axis is at most
+#: this many times the mean side (else all 8 neighbours with forward windows)
+_HALF_STENCIL = 2.0
 #: centres sampled to find the binning range when far boxes stretch the span
 _SAMPLE = 4096
 #: boxes per chunk of columns (parallel work unit, independent of threads)
@@ -517,16 +520,16 @@ class SweepAndPrune:
         k = bg if threads > 1 else bg.serial
         m = max(1, min(_MEASURE_CHUNKS, n // 8192))
         if self._g_meas is None or self._g_meas[0].shape[0] != m:
-            self._g_meas = (np.empty((m, 3)), np.empty((m, 3)),
+            self._g_meas = (np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)),
                             np.empty((m, bg.NBUCKETS), np.int64),
                             np.empty((m, bg.NBUCKETS, 3)))
-        cmin, cmax, hist, hext = self._g_meas
+        cmin, cmax, ssum, hist, hext = self._g_meas
         geo = {"n": n}
         if n == 0:
             geo.update(big_bucket=bg.NBUCKETS, big=0, spread=1.0, width=np.zeros(3),
-                       cmin=np.zeros(3), cmax=np.zeros(3), typical=0.0)
+                       cmin=np.zeros(3), cmax=np.zeros(3), typical=0.0, mean=np.zeros(3))
             return geo
-        k.measure(lower, upper, cmin, cmax, hist, hext)
+        k.measure(lower, upper, cmin, cmax, ssum, hist, hext)
         counts = hist.sum(axis=0)
         nz = np.flatnonzero(counts)
         counts = counts[nz]
@@ -547,7 +550,7 @@ class SweepAndPrune:
         typical = float(np.ldexp(1.0, int(nz[med]) - bg.OFFSET))  # above the median side
         geo.update(big_bucket=big_bucket, big=big, width=width, typical=typical,
                    spread=top / typical if typical > 0 and np.isfinite(top) else 1.0,
-                   cmin=cmin.min(axis=0), cmax=cmax.max(axis=0))
+                   cmin=cmin.min(axis=0), cmax=cmax.max(axis=0), mean=ssum.sum(axis=0) / n)
         return geo
 
     def _grid(self, geo, lower, upper):
@@ -679,6 +682,9 @@ class SweepAndPrune:
         _, grid, fresh = self._g_binned
         c0, c1, z, o0, o1, inv0, inv1, nb0, nb1, ws, reach = grid
         h0, h1, reach_z = 0.5 * reach[0], 0.5 * reach[1], reach[2]
+        # the half stencil when the largest small side on the sweep axis is
+        # close to the mean one (its windows are longer by that side)
+        half = bool(reach_z <= _HALF_STENCIL * float(geo["mean"][z]))
         ncol = nb0 * nb1
         start = self._g_start[:ncol + 2]
         perm = self._g_perm
@@ -714,9 +720,9 @@ class SweepAndPrune:
         ns = len(sweep_chunks) - 1
         while True:
             if todo[:ns].any():
-                k.sweep(sweep_chunks, start, nb0, nb1, o0, o1, inv0, inv1, h0, h1, xl, xu, yl,
-                        yu, zl, zu, perm, self._g_out, reg[:ns], caps[:ns], todo[:ns],
-                        need[:ns], tested[:ns])
+                k.sweep(sweep_chunks, start, nb0, nb1, o0, o1, inv0, inv1, h0, h1, reach_z, half,
+                        xl, xu, yl, yu, zl, zu, perm, self._g_out, reg[:ns], caps[:ns],
+                        todo[:ns], need[:ns], tested[:ns])
             if n_big and todo[ns:].any():
                 k.sweep_big(big_chunks, big0, start, nb0, nb1, o0, o1, inv0, inv1, reach_z,
                             xl, xu, yl, yu, zl, zu, perm, self._g_out, reg[ns:], caps[ns:],
@@ -755,6 +761,7 @@ class SweepAndPrune:
         _LAST_PAIRS_PER_BOX[0] = len(pairs) / n
         stats.update(columns={"axes": (c0, c1), "sweep_axis": z, "grid": (nb0, nb1),
                               "width": tuple(ws), "big": n_big, "chunks": ns,
+                              "stencil": "half" if half else "forward",
                               "big_bucket_side": float(np.ldexp(1.0, geo["big_bucket"] - 1
                                                                 - bg.OFFSET))
                               if n_big else None,

@@ -149,13 +149,21 @@ def test_huge_and_tiny_boxes_use_the_big_list():
     all_paths_agree(lo, hi)
 
 
-def test_larger_random_input_many_columns():
+@pytest.mark.parametrize("spread", [False, True])
+def test_larger_random_input_many_columns(spread):
+    """Close sizes take the half stencil, spread sizes the forward windows."""
     rng = np.random.default_rng(3)
     n = 4000
     lo = rng.random((n, 3)) * 12.0
-    hi = lo + rng.random((n, 3)) * rng.choice([0.0, 0.5, 1.0], (n, 1))
+    if spread:
+        hi = lo + rng.random((n, 3)) * rng.choice([0.0, 0.5, 1.0], (n, 1))
+    else:
+        hi = lo + rng.uniform(0.4, 0.6, (n, 3))
     want = all_paths_agree(lo, hi)
     assert len(want) > n // 8
+    _, engine = run("columns", 2, lo, hi)
+    assert engine.stats["columns"]["stencil"] == ("forward" if spread else "half")
+    assert engine.stats["columns"]["grid"][0] > 3
 
 
 def test_thread_count_does_not_change_the_rows():
@@ -226,6 +234,7 @@ def test_auto_records_its_choice_and_reason():
     s = engine.stats
     assert s["path"] == "columns"
     assert "column" in s["path_reason"]
+    assert s["columns"]["stencil"] == "half"
 
 
 def test_auto_keeps_columns_for_a_wide_size_spread():
@@ -238,6 +247,7 @@ def test_auto_keeps_columns_for_a_wide_size_spread():
     pairs = engine.update(lo, lo + side)
     assert engine.stats["path"] == "columns"
     assert engine.stats["columns"]["spread"] > 4
+    assert engine.stats["columns"]["stencil"] == "forward"
     check(pairs, lo, lo + side)
 
 
