@@ -753,16 +753,21 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
         xp = xs[p]
         yp = ys[p]
         zp = zs[p]
-        rp = rs[p]
-        lp = ls[p] if use_label else 0
         ip = perm[p]
         word = words[r]
         while word:
             q = base + np.int64(cttz(word))
             word &= word - np.uint64(1)
-            ok, d2, dx, dy, dz = _pair_test(
-                q, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az, bx, by, bz, cx, cy,
-                cz, xp, yp, zp, rp, lp, self_images, skin, strict, uniform, x2)
+            # a pair of pass 1: only its separation is needed (_pair_test's sum)
+            if diag:
+                dx = (xs[q] - xp) + ax
+                dy = (ys[q] - yp) + by
+                dz = (zs[q] - zp) + cz
+            else:
+                dx = (((xs[q] - xp) + ax) + bx) + cx
+                dy = (((ys[q] - yp) + ay) + by) + cy
+                dz = (((zs[q] - zp) + az) + bz) + cz
+            d2 = dx * dx + dy * dy + dz * dz
             iq = perm[q]
             flip = iq < ip
             out_p[o, 0] = min(ip, iq)
