@@ -158,7 +158,8 @@ class SweepAndPrune:
 
     ``stats`` after each call: ``path`` and ``path_reason``; ``seconds`` per
     phase (``sort``, ``candidates``, ``pairing``, ``total``; the column path
-    counts binning and sorting as ``sort`` and its sweep as ``pairing``);
+    counts measuring, choosing, binning and sorting as ``sort`` and its sweep
+    as ``pairing``);
     ``axes`` and ``dispersion`` (the paper's sweep axes and the D of its sort
     buckets; on the column path the two column axes and the D of the boxes
     over the grid's slabs along each); ``swaps``; ``candidates_tested`` and
@@ -667,7 +668,6 @@ class SweepAndPrune:
 
     def _update_columns(self, lower, upper, threads, t_start, geo):
         n = lower.shape[0]
-        t0 = time.perf_counter()
         k = bg if threads > 1 else bg.serial
         if geo is None:
             geo = self._geometry(lower, upper, threads)
@@ -773,7 +773,8 @@ class SweepAndPrune:
         disp = {c0: float(np.abs(occ.sum(axis=1) - n_small / nb0).sum() / n_small),
                 c1: float(np.abs(occ.sum(axis=0) - n_small / nb1).sum() / n_small)}
         self._finish(stats, pairs, int(tested.sum()) + big_tested,
-                     {"sort": t1 - t0, "candidates": 0.0, "pairing": t2 - t1}, disp, t_start,
+                     {"sort": t1 - t_start, "candidates": 0.0, "pairing": t2 - t1}, disp,
+                     t_start,
                      axes=(c0, c1))
         return pairs
 
