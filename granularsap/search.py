@@ -177,12 +177,9 @@ class _Search:
         self._n = -1
         self._out_cap = 0
         self._perm = None
-        self._vcap = None
-        #: columns per pair range of a Verlet build (2: columns half the range wide,
-        #: two-layer stencil) and of a direct frame (1: the stencil's runs are longer,
-        #: which costs less than the candidates they add)
-        self._split = 2
-        self._split_direct = 1
+        #: columns per pair range (1: columns one range wide, a 3 x 3 stencil; two
+        #: per range test fewer candidates but visit 13 columns instead of 5)
+        self._split = 1
         #: two column levels for widely spread radii (direct frames): True chooses
         #: by cost, False never, a radius forces that split
         self._levels = True
@@ -206,7 +203,6 @@ class _Search:
         self._perm_buf = np.empty(n, np.int64)
         self._vstart = np.empty(n, np.int64)
         self._vstop = np.empty(n, np.int64)
-        self._vcap = None
 
     def _alloc_output(self, total):
         q = self.quantities
@@ -401,7 +397,7 @@ class _Search:
         delta = bin_range / widths
         delta_big = (2.0 * rmax + reach + guard) / widths
         nb = [1, 1]
-        split = self._split_direct if self._margin == 0.0 else self._split
+        split = self._split
         for c in range(2):
             if span[c] > 0:
                 with np.errstate(over="ignore", divide="ignore"):
@@ -473,82 +469,35 @@ class _Search:
         if path == "sweep":
             self._r_small = None
             return self._sweep_build(cell, pbc, minimum, reach, use_label, n, times)
+        ws = self._ws
+        geometry = (chunk_cols, start, nb0, nb1, pbc, tz, np.ascontiguousarray(ws[:, 0]),
+                    np.ascontiguousarray(ws[:, 1]), np.ascontiguousarray(ws[:, 2]),
+                    self._rs, self._ls, use_label, cell)
+        big = (self._rs > r_small).view(np.uint8) if r_small is not None else _NO_BIG
+        levels = (r_small is not None, big, r_small or 0.0, stencil_big)
+        times["build"] = 0.0
         if self._margin == 0.0:
-            ws = self._ws
-            geometry = (chunk_cols, start, nb0, nb1, pbc, tz, np.ascontiguousarray(ws[:, 0]),
-                        np.ascontiguousarray(ws[:, 1]), np.ascontiguousarray(ws[:, 2]),
-                        self._rs, self._ls, use_label, cell)
-            times["build"] = 0.0
-            big = (self._rs > r_small).view(np.uint8) if r_small is not None else _NO_BIG
-            levels = (r_small is not None, big, r_small or 0.0, stencil_big)
             return self._direct(geometry, diag, stencil, rmax, reach, inv_w2, minimum, skin,
                                 rad, times, levels)
-        rows = np.diff(self._chunk_rows)
-        if self._vcap is None or len(self._vcap) != n_chunks:
-            if self._vcap is None:
-                # first build: entries per particle of a uniform system of this
-                # density (a chunk that needs more is swept again, exactly sized)
-                volume = abs(float(np.linalg.det(cell))) * float(np.prod(span))
-                est = math.inf
-                if volume > 0:
-                    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
-                        est = float(0.5 * n / np.float64(volume) * 4.0 / 3.0 * math.pi
-                                    * np.float64(2.0 * rmax + reach) ** 3)
-                per = int(min(64.0, 1.2 * est + 4)) if math.isfinite(est) else 64
-            else:
-                per = max(8, int(self._vneed.sum() / max(n, 1) * 1.15) + 4)
-            cap = rows * per + 256
-        else:
-            cap = np.maximum(self._vneed + self._vneed // 8 + 256, rows * 4 + 256)
-        need = np.zeros(n_chunks, np.int64)
-        tested = np.zeros(n_chunks, np.int64)
-        todo = np.ones(n_chunks, np.bool_)
-        while True:
-            reg_start = np.zeros(n_chunks, np.int64)
-            reg_start[1:] = np.cumsum(cap)[:-1]
-            size = int(cap.sum())
-            if not hasattr(self, "_vb") or len(self._vb) < size:
-                self._vb = np.empty(size + size // 8, np.int32)
-                self._vs = np.empty(size + size // 8, np.int32)
-                todo[:] = True
-            self._kern.build(chunk_cols, start, nb0, nb1, pbc, tz, self._ws, self._rs,
-                       self._ls, use_label, cell, stencil, rmax, reach, inv_w2,
-                       not minimum, self._vstart, self._vstop, self._vb, self._vs, reg_start,
-                       cap, todo, need, tested)
-            over = need > cap
-            if not over.any():
-                break
-            cap = np.where(over, need + need // 8 + 256, cap)
-            todo = over
-            if int(cap.sum()) > len(self._vb):
-                todo[:] = True
-        if len(self._vb) > int(need.sum()) * 5 // 4 + 65536:
-            cap = self._compact(need, reg_start)
-        self._vcap = cap
-        self._vneed = need
+        # a Verlet list: the records of the pairs within the range plus the margin
+        t1 = time.perf_counter()
+        uniform = bool(rad.min() == rad.max())
+        thr = float(rad[0]) + float(rad[0]) + reach if uniform else 0.0
+        tests = (diag, stencil, rmax, reach, inv_w2, not minimum, reach, False, uniform,
+                 thr * thr * (1.0 + 1e-12))
+        counts, tested, wstart, wneed = self._pass1(geometry, tests, levels, True)
+        self._rows_list = False
+        self._wstart, self._wneed = wstart, wneed
+        self._vneed = counts
         times["build"] = time.perf_counter() - t1
         return int(tested.sum())
 
-    def _direct(self, geometry, diag, stencil, rmax, reach, inv_w2, minimum, skin, rad,
-                times, levels):
-        """A frame without a rebuild margin: pairs straight from the column sweep.
-
-        Pass 1 tests every candidate and keeps, for each run of up to 64
-        candidates with a pair among them, a record (the 64-bit mask of the
-        pairs, the particle, the first candidate, the lattice shift) in regions
-        per chunk sized from the last frame (a chunk that needs more is swept
-        again); pass 2 writes the pairs of the records into the output buffers.
-        No Verlet list is kept."""
-        t0 = time.perf_counter()
+    def _pass1(self, geometry, tests, levels, verlet):
+        """Pass 1 of the column sweep: per chunk its pairs, candidates and records,
+        in regions sized from the last build (a chunk that needs more is swept
+        again); (counts, tested, wstart, wneed)."""
         n_chunks = len(geometry[0]) - 1
-        self._direct_done = True
-        self._vneed = np.zeros(0, np.int64)
-        self._vcap = None
-        strict = not self.include_cutoff
-        uniform = bool(rad.min() == rad.max())
-        thr = float(rad[0]) + float(rad[0]) + skin if uniform else 0.0
-        x2 = _square_bound(thr, strict) if uniform else 0.0
-        q = self.quantities
+        stencil = tests[1]
         counts = np.zeros(n_chunks, np.int64)
         tested = np.zeros(n_chunks, np.int64)
         wneed = np.zeros(n_chunks, np.int64)
@@ -557,7 +506,6 @@ class _Search:
         if wcap is None or len(wcap) != n_chunks:
             wcap = rows * (len(stencil) + 3) + 64
         todo = np.ones(n_chunks, np.bool_)
-        tests = (diag, stencil, rmax, reach, inv_w2, not minimum, skin, strict, uniform, x2)
         while True:
             wstart = np.zeros(n_chunks, np.int64)
             wstart[1:] = np.cumsum(wcap)[:-1]
@@ -571,19 +519,41 @@ class _Search:
                 todo[:] = True
             records = (self._words, self._rec_p, self._rec_q, self._rec_s)
             self._kern.direct_count(*geometry, *tests, *records, wstart, wcap, counts, tested,
-                                    wneed, todo, *levels)
+                                    wneed, todo, *levels, verlet)
             over = wneed > wcap
             if not over.any():
                 break
             wcap = np.where(over, wneed + wneed // 8 + 64, wcap)
             todo = over
         self._wcap = np.maximum(wcap, wneed + wneed // 8 + 64)
-        offsets = np.zeros(n_chunks, np.int64)
+        return counts, tested, wstart, wneed
+
+    def _direct(self, geometry, diag, stencil, rmax, reach, inv_w2, minimum, skin, rad,
+                times, levels):
+        """A frame without a rebuild margin: pairs straight from the column sweep.
+
+        Pass 1 tests every candidate and keeps, for each run of up to 64
+        candidates with a pair among them, a record (the 64-bit mask of the
+        pairs, the particle, the first candidate, the lattice shift); pass 2
+        writes the pairs of the records into the output buffers.  No Verlet
+        list is kept."""
+        t0 = time.perf_counter()
+        self._direct_done = True
+        self._vneed = np.zeros(0, np.int64)
+        strict = not self.include_cutoff
+        uniform = bool(rad.min() == rad.max())
+        thr = float(rad[0]) + float(rad[0]) + skin if uniform else 0.0
+        x2 = _square_bound(thr, strict) if uniform else 0.0
+        tests = (diag, stencil, rmax, reach, inv_w2, not minimum, skin, strict, uniform, x2)
+        counts, tested, wstart, wneed = self._pass1(geometry, tests, levels, False)
+        offsets = np.zeros(len(counts), np.int64)
         offsets[1:] = np.cumsum(counts)[:-1]
         total = int(counts.sum())
         t1 = time.perf_counter()
         self._alloc_output(total)
+        q = self.quantities
         (_, _, _, _, _, xs, ys, zs, rs, ls, use_label, cell) = geometry[1:]
+        records = (self._words, self._rec_p, self._rec_q, self._rec_s)
         self._kern.direct_fill(wstart, wneed, offsets, *records, xs, ys, zs, rs, ls, use_label,
                                cell, diag, not minimum, skin, strict, uniform, x2, self._perm,
                                self._ks, "d" in q, "D" in q, "S" in q, self._out_p,
@@ -633,6 +603,7 @@ class _Search:
         if self._sweeper is None:
             self._sweeper = SweepCandidates(n_threads=self.n_threads)
         half = self._rs + 0.5 * reach
+        self._rows_list = True
         vstart, vstop, vb, vs = self._sweeper.build(
             self._ws, half, cell if pbc.any() else None, pbc, not minimum, spheres=True,
             labels=self._ls if use_label else None)
@@ -642,47 +613,50 @@ class _Search:
         rows = np.unique(np.concatenate([np.arange(0, n, _CHUNK), [n]])).astype(np.int64)
         self._chunk_rows = rows
         self._vneed = vstop[rows[1:] - 1] - vstart[rows[:-1]]
-        self._vcap = None
         times["build"] = time.perf_counter() - t0
         return int(self._sweeper.stats.get("sweep_candidates_tested") or len(vb))
 
-    def _compact(self, need, reg_start):
-        """Move the Verlet list into arrays sized to it (a first guess was large)."""
-        cap = need + need // 8 + 256
-        new_start = np.zeros(len(cap), np.int64)
-        new_start[1:] = np.cumsum(cap)[:-1]
-        size = int(cap.sum())
-        vb = np.empty(size, np.int32)
-        vs = np.empty(size, np.int32)
-        rows = self._chunk_rows
-        for c in range(len(need)):
-            a, b, k = int(reg_start[c]), int(new_start[c]), int(need[c])
-            vb[b:b + k] = self._vb[a:a + k]
-            vs[b:b + k] = self._vs[a:a + k]
-            shift = b - a
-            self._vstart[rows[c]:rows[c + 1]] += shift
-            self._vstop[rows[c]:rows[c + 1]] += shift
-        self._vb, self._vs = vb, vs
-        return cap
-
     def _narrow(self, skin, cell):
+        """A Verlet frame: re-test the kept list (count pass, then fill pass)."""
         if self._n == 0:
             self._alloc_output(0)
             return 0
-        rows = self._chunk_rows
-        counts = np.empty(len(rows) - 1, np.int64)
         strict = not self.include_cutoff
-        self._kern.narrow_count(rows, self._vstart, self._vstop, self._vb, self._vs, self._ws,
-                          self._m, self._rs, skin, cell, strict, counts)
+        q = self.quantities
+        wants = ("d" in q, "D" in q, "S" in q)
+        rad = self._rs
+        uniform = bool(rad.min() == rad.max())
+        thr = float(rad[0]) + float(rad[0]) + skin if uniform else 0.0
+        x2 = _square_bound(thr, strict) if uniform else 0.0
+        diag = not np.any(cell - np.diag(np.diag(cell)))
+        tests = (cell, diag, strict, uniform, x2)
+        if self._rows_list:  # the list of the paper's sweep, by particle row
+            rows = self._chunk_rows
+            counts = np.empty(len(rows) - 1, np.int64)
+            self._kern.narrow_count(rows, self._vstart, self._vstop, self._vb, self._vs,
+                                    self._ws, self._m, self._rs, skin, cell, strict, counts)
+        else:
+            self._alloc_output(0)
+            counts = np.zeros(len(self._wstart), np.int64)
+            records = (self._words, self._rec_p, self._rec_q, self._rec_s)
+            self._kern.records_narrow(False, self._wstart, self._wneed, counts, counts,
+                                      *records, self._ws, self._m, self._rs, skin, *tests,
+                                      self._perm, self._ks, *wants, self._out_p,
+                                      self._out_d, self._out_v, self._out_s)
         offsets = np.zeros(len(counts), np.int64)
         offsets[1:] = np.cumsum(counts)[:-1]
         total = int(counts.sum())
         self._alloc_output(total)
-        q = self.quantities
-        self._kern.narrow_fill(rows, offsets, counts, self._vstart, self._vstop, self._vb, self._vs,
-                         self._ws, self._m, self._rs, skin, cell, strict, self._perm,
-                         self._ks, "d" in q, "D" in q, "S" in q, self._out_p,
-                         self._out_d, self._out_v, self._out_s)
+        if self._rows_list:
+            self._kern.narrow_fill(rows, offsets, counts, self._vstart, self._vstop, self._vb,
+                                   self._vs, self._ws, self._m, self._rs, skin, cell, strict,
+                                   self._perm, self._ks, *wants, self._out_p, self._out_d,
+                                   self._out_v, self._out_s)
+        else:
+            self._kern.records_narrow(True, self._wstart, self._wneed, offsets, counts,
+                                      *records, self._ws, self._m, self._rs, skin, *tests,
+                                      self._perm, self._ks, *wants, self._out_p,
+                                      self._out_d, self._out_v, self._out_s)
         return total
 
     def _dedup(self, total):

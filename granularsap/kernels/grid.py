@@ -16,7 +16,7 @@ fractional width ``B / w_c`` holds every partner within ``B`` in itself and
 its two neighbours, in triclinic cells too.
 
 *Columns.*  Axes 0 and 1 are cut into ``nb0 x nb1`` columns at least the
-largest pair range (plus the Verlet margin) wide; axis 2 is the sweep axis.
+pair range (plus the Verlet margin) wide; axis 2 is the sweep axis.
 Particles are stored column by column, sorted along ``t2`` inside each column
 (a stable counting sort by column over the previous build's order, then an
 insertion sort inside each column, which temporal coherence keeps close to
@@ -26,25 +26,35 @@ contiguous memory.  This is the multi-SaP of Tracy, Buss and Woods (2009) and
 Terdiman (2007): a Sweep and Prune (Algorithm 1's sweep, one axis) inside each
 cell of a spatial subdivision.
 
-*Sweep.*  For particle ``a`` the window along axis 2 is
-``|t2_b - t2_a| <= (rad[a] + max(rad) + skin + margin) / w_2``, found by
-binary search in each stencil column.  The stencil is half of the
-``(2 L0 + 1) x (2 L1 + 1)`` neighbourhood (offsets lexicographically
-positive) plus the column itself, where ``a`` looks only forward in sorted
-order; so each unordered pair, and each periodic image of it, is reported by
-exactly one particle and nothing is de-duplicated afterwards.  Periodic axes
-wrap the stencil (column offset -> column and lattice shift) and the window
-(``t2 + k`` for integer ``k``); a cell narrower than the range simply gives a
-stencil of more than one layer, so every image within range is found (the
-ASE convention) when self-images are asked for.
+*Sweep* (``_sweep_chunk``).  The stencil is half of the ``(2 L0 + 1) x (2 L1
++ 1)`` neighbourhood (offsets lexicographically positive) plus the column
+itself, where a particle looks only forward in sorted order; so each
+unordered pair, and each periodic image of it, is reported by exactly one
+particle and nothing is de-duplicated afterwards.  For each stencil column
+two pointers walk it while ``p`` walks its own column: the window of ``p``
+along axis 2 is ``|t2_b - t2_a| <= (rad[a] + max(rad) + skin + margin) /
+w_2``.  Periodic axes wrap the stencil (column offset -> column and lattice
+shift) and the window (``t2 + k`` for integer ``k``); a cell narrower than
+the range simply gives a stencil of more than one layer, so every image
+within range is found (the ASE convention) when self-images are asked for.
+Between the pointers lie runs of one lattice shift, each tested by a counted
+loop with no branch in its body.
 
-*Verlet list.*  A build keeps every pair within range plus ``margin``: for
-each particle (in column order) the partner index and the lattice shift
-``S`` (three 10-bit fields of one int32).  While no particle has moved more
-than ``margin / 2`` since the build, every pair in range is in the list, and
-a frame only re-tests the list (``narrow_count`` / ``narrow_fill``) with the
-shift corrected by the image jumps ``m`` of the two particles since the
-build: ``S' = S - m_b + m_a``.
+*Records.*  Pass 1 keeps, for every run of up to 64 candidates holding a
+pair, a record: the 64-bit mask of its pairs, the particle, the first
+candidate and the lattice shift ``S`` (three 10-bit fields of one int32).  A
+frame without a Verlet margin writes the pairs of its records at once
+(``direct_fill``).  With a margin the records are the Verlet list (the pairs
+within range plus ``margin``): while no particle has moved more than
+``margin / 2`` since the build, every pair in range is in the list, and a
+frame only re-tests it (``records_narrow``) with the shift corrected by the
+image jumps ``m`` of the two particles since the build: ``S' = S - m_b +
+m_a``.
+
+*Levels.*  Widely spread radii may be split into small and large: columns
+are then sized for the small ones and the large ones walk a wider full
+stencil, pairing with everything (a large-large pair is kept by its lower
+end).
 
 *Arithmetic.*  The separation is ``(w_b - w_a) + S0 a + S1 b + S2 c``, the
 order of MDAnalysis's triclinic minimum image; negating it term by term
@@ -55,9 +65,9 @@ by a power of two before they get here: see ``search.py``.)
 
 Cost: O(n) for wrapping, sorting and gathering, O(candidates) for the
 sweep; candidates per pair found are about ``(3 B)^2 2 B / (2 (4/3) pi R^3)``
-for uniform points.  Parallel work is split into chunks of whole columns
-(build) or contiguous particle ranges (Verlet frames) whose boundaries depend
-only on the input, never on the thread count; each chunk writes into its own
+for uniform points (4.3 for columns one range wide).  Parallel work is split
+into chunks of whole columns whose boundaries depend only on the input, never
+on the thread count; each chunk writes its records and its pairs into its own
 region, so no two threads share an output slot.
 """
 
@@ -317,19 +327,6 @@ def _lower_bound(arr, lo, hi, v):
 
 
 @ijit
-def _keep(w, p, q, cell, s0, s1, s2, rs, ls, use_label, self_images, reach):
-    """Build test: a superset of the exact test (squared, with a relative hair of
-    slack; ``reach`` carries the rounding guard), computed without branches."""
-    dx, dy, dz = _separation(w, p, q, cell, s0, s1, s2)
-    thr = rs[p] + rs[q] + reach
-    ok = dx * dx + dy * dy + dz * dz <= thr * thr * (1.0 + 1e-12)
-    ok = ok & ((p != q) | self_images)
-    if use_label:
-        ok = ok & (ls[p] != ls[q])
-    return ok
-
-
-@ijit
 def _step(q, k, kf, lo, hi, wrap):
     """Next element of a column read as a periodic sequence: past the end it wraps
     to the start one period up, or (``wrap`` False) stops at ``hi``."""
@@ -337,152 +334,6 @@ def _step(q, k, kf, lo, hi, wrap):
     if q == hi and wrap:
         return lo, k + 1, kf + 1.0
     return q, k, kf
-
-
-@jit
-def _build_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, ws, rs, ls, use_label, cell, stencil,
-                 rmax, reach, inv_w2, self_images, vstart, vstop, vb, vs, base, cap):
-    """Sweep the columns ``[c_lo, c_hi)``; writes at most ``cap`` entries from
-    ``base``; returns (entries needed, candidates tested).
-
-    Along the sweep axis a column is read as the infinite periodic sequence
-    ``tz[q] + k`` (``k`` counts wraps; just ``k = 0`` on an open axis).  For
-    each stencil column one pointer walks that sequence: it is the first
-    element at or above ``tz[p] - dmax``, which only grows as ``p`` walks its
-    own sorted column, so no per-particle search is needed.
-    """
-    pos = 0
-    tested = 0
-    p2 = pbc[2]
-    n_st = stencil.shape[0]
-    col2_of = np.empty(n_st, np.int64)
-    sh0 = np.empty(n_st, np.int64)
-    sh1 = np.empty(n_st, np.int64)
-    ptr_q = np.empty(n_st, np.int64)
-    ptr_k = np.empty(n_st, np.int64)
-    dmax = (2.0 * rmax + reach) * inv_w2
-    for col in range(c_lo, c_hi):
-        lo_c = start[col]
-        hi_c = start[col + 1]
-        if lo_c == hi_c:
-            continue
-        b0 = col // nb1
-        b1 = col - b0 * nb1
-        # the stencil's columns, their lattice shifts and their start pointers
-        n_live = 0
-        first = tz[lo_c] - dmax
-        for o in range(n_st):
-            c0 = b0 + stencil[o, 0]
-            c1 = b1 + stencil[o, 1]
-            s0 = 0
-            s1 = 0
-            if pbc[0]:
-                s0 = c0 // nb0
-                c0 -= s0 * nb0
-            elif c0 < 0 or c0 >= nb0:
-                continue
-            if pbc[1]:
-                s1 = c1 // nb1
-                c1 -= s1 * nb1
-            elif c1 < 0 or c1 >= nb1:
-                continue
-            col2 = c0 * nb1 + c1
-            lo2 = start[col2]
-            hi2 = start[col2 + 1]
-            if lo2 == hi2:
-                continue
-            k = int(math.floor(first)) - 1 if p2 else 0
-            q = _lower_bound(tz, lo2, hi2, first - k)
-            if q == hi2:
-                if not p2:
-                    continue
-                q = lo2
-                k += 1
-            col2_of[n_live] = col2
-            sh0[n_live] = s0
-            sh1[n_live] = s1
-            ptr_q[n_live] = q
-            ptr_k[n_live] = k
-            n_live += 1
-        for p in range(lo_c, hi_c):
-            vstart[p] = base + min(pos, cap)
-            tp = tz[p]
-            delta = (rs[p] + rmax + reach) * inv_w2
-            hi_v = tp + delta
-            # the column itself: forward in sorted order (and over the periodic wrap)
-            q = p + 1
-            k = 0
-            kf = 0.0
-            while True:
-                if q == hi_c:
-                    if not p2:
-                        break
-                    q = lo_c
-                    k += 1
-                    kf += 1.0
-                if tz[q] + kf > hi_v:
-                    break
-                tested += 1
-                ok = _keep(ws, p, q, cell, 0, 0, k, rs, ls, use_label, self_images, reach)
-                if pos < cap:  # written whether kept or not: no unpredictable branch
-                    vb[base + pos] = q
-                    vs[base + pos] = _encode(0, 0, k)
-                pos += np.int64(ok)
-                q += 1
-            # half stencil of neighbouring columns
-            lo_v = tp - dmax
-            for o in range(n_live):
-                col2 = col2_of[o]
-                lo2 = start[col2]
-                hi2 = start[col2 + 1]
-                q = ptr_q[o]
-                k = ptr_k[o]
-                if q >= hi2:  # open sweep axis: exhausted
-                    continue
-                kf = float(k)
-                while tz[q] + kf < lo_v:
-                    q, k, kf = _step(q, k, kf, lo2, hi2, p2)
-                    if q == hi2:
-                        break
-                ptr_q[o] = q
-                ptr_k[o] = k
-                if q >= hi2:
-                    continue
-                s0 = sh0[o]
-                s1 = sh1[o]
-                while True:
-                    if tz[q] + kf > hi_v:
-                        break
-                    tested += 1
-                    ok = _keep(ws, p, q, cell, s0, s1, k, rs, ls, use_label, self_images,
-                               reach)
-                    if pos < cap:
-                        vb[base + pos] = q
-                        vs[base + pos] = _encode(s0, s1, k)
-                    pos += np.int64(ok)
-                    q, k, kf = _step(q, k, kf, lo2, hi2, p2)
-                    if q == hi2:
-                        break
-            vstop[p] = base + min(pos, cap)
-    return pos, tested
-
-
-@pjit
-def build(chunk_cols, start, nb0, nb1, pbc, tz, ws, rs, ls, use_label, cell, stencil, rmax,
-          reach, inv_w2, self_images, vstart, vstop, vb, vs, reg_start, reg_cap, todo,
-          need, tested):
-    """``_build_chunk`` for every chunk marked in ``todo``; ``need[c]`` entries."""
-    n_chunks = chunk_cols.shape[0] - 1
-    for c in numba.prange(n_chunks):
-        if not todo[c]:
-            continue
-        need[c], tested[c] = _build_chunk(
-            chunk_cols[c], chunk_cols[c + 1], start, nb0, nb1, pbc, tz, ws, rs, ls,
-            use_label, cell, stencil, rmax, reach, inv_w2, self_images, vstart, vstop, vb,
-            vs, reg_start[c], reg_cap[c])
-
-
-# ------------------------------------------------------------ direct frames
 
 
 @ijit
@@ -524,17 +375,19 @@ def _pair_test(q, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az, bx, by, bz
 def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label,
                  cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform,
                  x2, words, rec_p, rec_q, rec_s, wbase, wcap, levels, big, r_small,
-                 stencil_big):
+                 stencil_big, verlet):
     """Pass 1 of a direct frame: test every candidate of the columns
     ``[c_lo, c_hi)`` and keep the outcome as records (``records_fill`` reads
     them): a 64-bit mask of the pairs found among up to 64 consecutive
     candidates, with the particle, the first candidate and the lattice shift.
     Records with no pair are not kept.  Writes at most ``wcap`` records from
-    ``wbase``; returns (pairs, candidates, records needed).
+    ``wbase``; returns (pairs, candidates, records needed).  ``verlet``: the
+    records are a Verlet list instead, the pairs within ``rs[p] + rs[q] +
+    skin`` (the caller's skin holding the margin) by the squared test a hair
+    wide (a superset), re-tested every frame by ``records_narrow``.
 
-    The sweep of ``_build_chunk`` with the loops turned inside out: for each
-    column of the stencil, two pointers walk it while ``p`` walks its own
-    sorted column (Algorithm 1's sweep of one sorted list against another):
+    For each column of the stencil, two pointers walk it while ``p`` walks its
+    own sorted column (Algorithm 1's sweep of one sorted list against another):
     ``(q, k)`` is the first element of the periodic sequence ``tz + k`` at or
     above ``tz[p] - dmax`` and ``(qh, kh)`` the first above the upper end of
     ``p``'s window; both only grow with ``p`` (the upper one is searched per
@@ -703,10 +556,15 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                                 t = cttz(bits)
                                 bits &= bits - np.uint64(1)
                                 q2 = base + np.int64(t)
-                                ok, d2, dx, dy, dz = _pair_test(
-                                    q2, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az,
-                                    bx, by, bz, cx, cy, cz, xp, yp, zp, rp, lp, self_images,
-                                    skin, strict, uniform, x2)
+                                if verlet:  # a superset is what the list needs
+                                    ok = (p != q2) | self_images
+                                    if use_label:
+                                        ok = ok & (lp != ls[q2])
+                                else:
+                                    ok, d2, dx, dy, dz = _pair_test(
+                                        q2, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay,
+                                        az, bx, by, bz, cx, cy, cz, xp, yp, zp, rp, lp,
+                                        self_images, skin, strict, uniform, x2)
                                 if not ok:
                                     word &= ~(np.uint64(1) << t)
                         if word:
@@ -787,7 +645,7 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
 def direct_count(chunk_cols, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell,
                  diag, stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform, x2,
                  words, rec_p, rec_q, rec_s, wstart, wcap, counts, tested, wneed, todo,
-                 levels, big, r_small, stencil_big):
+                 levels, big, r_small, stencil_big, verlet):
     """Pass 1 of a direct frame (no Verlet list) for every chunk marked in
     ``todo``: its pairs into ``counts``, its records into ``wneed`` (kept when
     they fit its ``wcap``)."""
@@ -799,7 +657,7 @@ def direct_count(chunk_cols, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
             chunk_cols[c], chunk_cols[c + 1], start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls,
             use_label, cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict,
             uniform, x2, words, rec_p, rec_q, rec_s, wstart[c], wcap[c], levels, big, r_small,
-            stencil_big)
+            stencil_big, verlet)
 
 
 @pjit
@@ -812,6 +670,66 @@ def direct_fill(wstart, wneed, offsets, words, rec_p, rec_q, rec_s, xs, ys, zs, 
                       rec_s, xs, ys, zs, rs, ls, use_label, cell, diag, self_images, skin,
                       strict, uniform, x2, perm, kw, want_d, want_vec, want_shift, out_p,
                       out_d, out_v, out_s)
+
+
+@pjit
+def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, rec_s, ws, m,
+                   rs, skin, cell, diag, strict, uniform, x2, perm, kw, want_d, want_vec,
+                   want_shift, out_p, out_d, out_v, out_s):
+    """A Verlet frame on a list of records: pass 1 (``fill`` False) counts each
+    chunk's pairs in range into ``counts``, pass 2 writes them from
+    ``offsets[c]`` (rows as ``narrow_fill``'s).  Each entry's shift is corrected
+    by the image jumps of its two particles since the build, as ``_entry`` does;
+    ``uniform`` and ``x2`` as for ``_hit``, ``diag`` a diagonal cell (the zero
+    terms of ``_separation``'s sum are left out: no square changes)."""
+    incl = not strict
+    for c in numba.prange(wstart.shape[0]):
+        o = offsets[c] if fill else 0
+        end = o + counts[c] if fill else 0
+        cnt = 0
+        for r in range(wstart[c], wstart[c] + wneed[c]):
+            p = np.int64(rec_p[r])
+            base = np.int64(rec_q[r])
+            code = rec_s[r] + m[p]
+            xp = ws[p, 0]
+            yp = ws[p, 1]
+            zp = ws[p, 2]
+            rp = rs[p]
+            ip = perm[p]
+            word = words[r]
+            while word:
+                q = base + np.int64(cttz(word))
+                word &= word - np.uint64(1)
+                s0, s1, s2 = _decode(code - m[q])
+                if diag:
+                    dx = (ws[q, 0] - xp) + s0 * cell[0, 0]
+                    dy = (ws[q, 1] - yp) + s1 * cell[1, 1]
+                    dz = (ws[q, 2] - zp) + s2 * cell[2, 2]
+                else:
+                    dx, dy, dz = _separation(ws, p, q, cell, s0, s1, s2)
+                d2 = dx * dx + dy * dy + dz * dz
+                if not fill:
+                    cnt += np.int64(_hit(d2, rp + rs[q] + skin, strict, uniform, x2))
+                    continue
+                if o >= end:
+                    break
+                d = math.sqrt(d2)
+                thr = rp + rs[q] + skin
+                ok = (d < thr) | (incl & (d == thr))
+                iq = perm[q]
+                flip = iq < ip
+                out_p[o, 0] = min(ip, iq)
+                out_p[o, 1] = max(ip, iq)
+                if want_d:
+                    out_d[o] = d
+                if want_vec:
+                    _store3(out_v, o, dx, dy, dz, flip)
+                if want_shift:
+                    _store3(out_s, o, s0 - kw[q, 0] + kw[p, 0], s1 - kw[q, 1] + kw[p, 1],
+                            s2 - kw[q, 2] + kw[p, 2], flip)
+                o += np.int64(ok)
+        if not fill:
+            counts[c] = cnt
 
 # ------------------------------------------------------------ Verlet frames
 
@@ -938,5 +856,5 @@ def _twin(kernel):
 
 #: the parallel kernels of this module, compiled serially (same names)
 serial = SimpleNamespace(**{name: _twin(globals()[name]) for name in (
-    "wrap", "wrap_sorted", "sort_columns", "gather", "build", "direct_count",
-    "direct_fill", "narrow_count", "narrow_fill")})
+    "wrap", "wrap_sorted", "sort_columns", "gather", "direct_count",
+    "direct_fill", "records_narrow", "narrow_count", "narrow_fill")})
