@@ -566,13 +566,14 @@ class SweepAndPrune:
         if n_small > 4 * _SAMPLE and np.all(np.isfinite(span)) and np.prod(
                 np.minimum(span / np.maximum(w0 * _COLUMN_WIDTH, 1e-300), 1e9) + 1.0) > cap:
             # Too many columns for the boxes: a few far boxes may stretch the
-            # span.  Bin over the range that holds all but about 0.1% of a
-            # sample of the centres; boxes outside go to the edge columns
-            # (clamping keeps neighbouring columns neighbours).
+            # span.  Bin over the range that holds all but 1% of a sample of
+            # the centres; boxes outside go to the edge columns (clamping keeps
+            # neighbouring columns neighbours).
             step = n_small // _SAMPLE
             centre = 0.5 * lower[::step] + 0.5 * upper[::step]
-            q = np.quantile(centre, [0.001, 0.999], axis=0)
-            lo_q, hi_q = q[0] - w0, q[1] + w0
+            q = np.quantile(centre, [0.005, 0.995], axis=0)
+            pad = 0.01 * (q[1] - q[0]) + w0
+            lo_q, hi_q = q[0] - pad, q[1] + pad
             keep = (hi_q - lo_q) < 0.5 * span
             cmin = np.where(keep, lo_q, cmin)
             cmax = np.where(keep, hi_q, cmax)
