@@ -246,8 +246,15 @@ def sort_columns(chunk_cols, start, perm, lower, upper, c0, c1, z, fresh, xl, xu
         for c in range(chunk_cols[ch], chunk_cols[ch + 1]):
             lo = start[c]
             hi = start[c + 1]
+            # gather in the kept order: both rows of a box are read in one step
             for p in range(lo, hi):
-                zl[p] = lower[perm[p], z]
+                i = perm[p]
+                zl[p] = lower[i, z]
+                xl[p] = lower[i, c0]
+                yl[p] = lower[i, c1]
+                xu[p] = upper[i, c0]
+                yu[p] = upper[i, c1]
+                zu[p] = upper[i, z]
             m = hi - lo
             done = m < 2
             if not fresh and not done:
@@ -257,14 +264,31 @@ def sort_columns(chunk_cols, start, perm, lower, upper, c0, c1, z, fresh, xl, xu
                 for p in range(lo + 1, hi):
                     v = perm[p]
                     kv = zl[p]
+                    if not _before(kv, v, zl[p - 1], perm[p - 1]):
+                        continue  # in place already (the steady state)
+                    a0 = xl[p]
+                    a1 = xu[p]
+                    a2 = yl[p]
+                    a3 = yu[p]
+                    a4 = zu[p]
                     q = p - 1
                     while q >= lo and _before(kv, v, zl[q], perm[q]):
                         perm[q + 1] = perm[q]
                         zl[q + 1] = zl[q]
+                        xl[q + 1] = xl[q]
+                        xu[q + 1] = xu[q]
+                        yl[q + 1] = yl[q]
+                        yu[q + 1] = yu[q]
+                        zu[q + 1] = zu[q]
                         q -= 1
                         moves += 1
                     perm[q + 1] = v
                     zl[q + 1] = kv
+                    xl[q + 1] = a0
+                    xu[q + 1] = a1
+                    yl[q + 1] = a2
+                    yu[q + 1] = a3
+                    zu[q + 1] = a4
                     if moves > budget:
                         done = False
                         break
@@ -275,15 +299,14 @@ def sort_columns(chunk_cols, start, perm, lower, upper, c0, c1, z, fresh, xl, xu
                     vals[p] = lower[seg[p], z] + 0.0  # -0.0 sorts as +0.0
                 order = np.argsort(vals, kind="mergesort")
                 for p in range(m):
-                    perm[lo + p] = seg[order[p]]
+                    i = seg[order[p]]
+                    perm[lo + p] = i
                     zl[lo + p] = vals[order[p]]
-            for p in range(lo, hi):
-                i = perm[p]
-                xl[p] = lower[i, c0]
-                xu[p] = upper[i, c0]
-                yl[p] = lower[i, c1]
-                yu[p] = upper[i, c1]
-                zu[p] = upper[i, z]
+                    xl[lo + p] = lower[i, c0]
+                    yl[lo + p] = lower[i, c1]
+                    xu[lo + p] = upper[i, c0]
+                    yu[lo + p] = upper[i, c1]
+                    zu[lo + p] = upper[i, z]
 
 
 @ijit
