@@ -1,8 +1,9 @@
 """Word-level bit operations used by the SuccTree.
 
-``cttz`` (count trailing zeros) lowers to the LLVM intrinsic, one instruction
-(``tzcnt``/``bsf``) on x86-64.  Under ``NUMBA_DISABLE_JIT=1`` a pure Python
-version is used so the kernels can be covered as Python.
+``cttz`` (count trailing zeros) and ``ctpop`` (count set bits) lower to the
+LLVM intrinsics, one instruction each (``tzcnt``/``bsf``, ``popcnt``) on
+x86-64.  Under ``NUMBA_DISABLE_JIT=1`` a pure Python version is used so the
+kernels can be covered as Python.
 """
 
 from __future__ import annotations
@@ -22,6 +23,9 @@ if numba.config.DISABLE_JIT:  # pragma: no cover - exercised only in the no-JIT 
         x = int(x)
         return np.uint64((x & -x).bit_length() - 1)
 
+    def ctpop(x):
+        return np.uint64(bin(int(x)).count("1"))
+
 else:
 
     @intrinsic
@@ -33,5 +37,17 @@ else:
 
         def codegen(context, builder, signature, args):
             return builder.cttz(args[0], ir.Constant(ir.IntType(1), 1))
+
+        return sig, codegen
+
+    @intrinsic
+    def ctpop(typingctx, x):
+        """Number of set bits of a uint64 (``popcnt``)."""
+        if x != types.uint64:
+            return None
+        sig = types.uint64(types.uint64)
+
+        def codegen(context, builder, signature, args):
+            return builder.ctpop(args[0])
 
         return sig, codegen

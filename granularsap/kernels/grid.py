@@ -81,7 +81,7 @@ import numba
 import numpy as np
 
 from .._numba import ijit, jit, pjit
-from .bits import cttz
+from .bits import ctpop, cttz
 
 #: fractional coordinates at or beyond this magnitude cannot be wrapped
 #: meaningfully (the wrapped value keeps no significant bits)
@@ -471,7 +471,9 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                 if levels and (big[p] != second):
                     continue
                 tp = tz[p]
-                hi_v = tp + (rs[p] + r_win + reach) * inv_w2
+                # the window's upper end from the largest range, so that it only
+                # grows with p (one pointer, no search per particle)
+                hi_v = tp + dmax
                 if own:
                     q = p + 1
                     k = 0
@@ -493,7 +495,7 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                     if q >= hi2:
                         break
                 # the upper end of p's window: never behind the lower one
-                if (not uniform) or kh < k or (kh == k and qh < q):
+                if kh < k or (kh == k and qh < q):
                     qh = q
                     kh = k
                     khf = kf
@@ -518,39 +520,50 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                         word = np.uint64(0)
                         if fast:
                             # the common case written out, so that it vectorises
-                            for q2 in range(base, top):
-                                dx = (xs[q2] - xp) + ax
-                                dy = (ys[q2] - yp) + by
-                                dz = (zs[q2] - zp) + cz
+                            # (slices: indices from zero need no wraparound)
+                            xq = xs[base:top]
+                            yq = ys[base:top]
+                            zq = zs[base:top]
+                            pt = p - base
+                            for t in range(top - base):
+                                dx = (xq[t] - xp) + ax
+                                dy = (yq[t] - yp) + by
+                                dz = (zq[t] - zp) + cz
                                 ok = ((dx * dx + dy * dy + dz * dz <= x2)
-                                      & ((p != q2) | self_images))
-                                word |= np.uint64(ok) << np.uint64(q2 - base)
+                                      & ((pt != t) | self_images))
+                                word |= np.uint64(ok) << np.uint64(t)
                         else:
                             # a vectorised superset first (squared, a relative hair
                             # wide), then the exact test on the few bits it sets
                             # levels: the first walk pairs small with small, the
                             # second large with small, and large with large from
                             # the lower end
+                            xq = xs[base:top]
+                            yq = ys[base:top]
+                            zq = zs[base:top]
+                            rq = rs[base:top]
+                            bq = big[base:top] if levels else big
+                            pt = p - base
                             if diag:
-                                for q2 in range(base, top):
-                                    dx = (xs[q2] - xp) + ax
-                                    dy = (ys[q2] - yp) + by
-                                    dz = (zs[q2] - zp) + cz
-                                    thr = rp + rs[q2] + skin
+                                for t in range(top - base):
+                                    dx = (xq[t] - xp) + ax
+                                    dy = (yq[t] - yp) + by
+                                    dz = (zq[t] - zp) + cz
+                                    thr = rp + rq[t] + skin
                                     ok = dx * dx + dy * dy + dz * dz <= thr * thr * loose
-                                    ok = ok & ((not levels) | (big[q2] == 0)
-                                               | (second & (p < q2)))
-                                    word |= np.uint64(ok) << np.uint64(q2 - base)
+                                    if levels:
+                                        ok = ok & ((bq[t] == 0) | (second & (pt < t)))
+                                    word |= np.uint64(ok) << np.uint64(t)
                             else:
-                                for q2 in range(base, top):
-                                    dx = (((xs[q2] - xp) + ax) + bx) + cx
-                                    dy = (((ys[q2] - yp) + ay) + by) + cy
-                                    dz = (((zs[q2] - zp) + az) + bz) + cz
-                                    thr = rp + rs[q2] + skin
+                                for t in range(top - base):
+                                    dx = (((xq[t] - xp) + ax) + bx) + cx
+                                    dy = (((yq[t] - yp) + ay) + by) + cy
+                                    dz = (((zq[t] - zp) + az) + bz) + cz
+                                    thr = rp + rq[t] + skin
                                     ok = dx * dx + dy * dy + dz * dz <= thr * thr * loose
-                                    ok = ok & ((not levels) | (big[q2] == 0)
-                                               | (second & (p < q2)))
-                                    word |= np.uint64(ok) << np.uint64(q2 - base)
+                                    if levels:
+                                        ok = ok & ((bq[t] == 0) | (second & (pt < t)))
+                                    word |= np.uint64(ok) << np.uint64(t)
                             bits = word
                             while bits:
                                 t = cttz(bits)
@@ -575,19 +588,10 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                                 rec_q[r] = base
                                 rec_s[r] = _encode(s0, s1, ka)
                             w += 1
-                            cnt += _popcount(word)
+                            cnt += np.int64(ctpop(word))
                     qa = lo2
                     ka += 1
     return cnt, tested, w
-
-@ijit
-def _popcount(word):
-    c = 0
-    while word:
-        word &= word - np.uint64(1)
-        c += 1
-    return c
-
 
 @jit
 def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls, use_label,
