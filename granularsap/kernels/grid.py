@@ -599,6 +599,7 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
                   want_vec, want_shift, out_p, out_d, out_v, out_s):
     """Pass 2 of a direct frame: write the pairs of records ``[r_lo, r_hi)`` from
     slot ``o`` (rows as ``narrow_fill``'s)."""
+    uo = np.uint64(o)
     for r in range(r_lo, r_hi):
         p = np.int64(rec_p[r])
         base = np.int64(rec_q[r])
@@ -617,8 +618,10 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
         zp = zs[p]
         ip = perm[p]
         word = words[r]
+        ubase = np.uint64(base)
         while word:
-            q = base + np.int64(cttz(word))
+            # unsigned indices: no negative-index fix on every access
+            q = ubase + cttz(word)
             word &= word - np.uint64(1)
             # a pair of pass 1: only its separation is needed (_pair_test's sum)
             if diag:
@@ -632,17 +635,17 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
             d2 = dx * dx + dy * dy + dz * dz
             iq = perm[q]
             flip = iq < ip
-            out_p[o, 0] = min(ip, iq)
-            out_p[o, 1] = max(ip, iq)
+            out_p[uo, 0] = min(ip, iq)
+            out_p[uo, 1] = max(ip, iq)
             if want_d:
-                out_d[o] = math.sqrt(d2)
+                out_d[uo] = math.sqrt(d2)
             if want_vec:
-                _store3(out_v, o, dx, dy, dz, flip)
+                _store3(out_v, uo, dx, dy, dz, flip)
             if want_shift:
-                _store3(out_s, o, s0 - kw[q, 0] + kw[p, 0], s1 - kw[q, 1] + kw[p, 1],
+                _store3(out_s, uo, s0 - kw[q, 0] + kw[p, 0], s1 - kw[q, 1] + kw[p, 1],
                         s2 - kw[q, 2] + kw[p, 2], flip)
-            o += 1
-    return o
+            uo += np.uint64(1)
+    return np.int64(uo)
 
 
 @pjit
@@ -701,8 +704,9 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
             rp = rs[p]
             ip = perm[p]
             word = words[r]
+            ubase = np.uint64(base)
             while word:
-                q = base + np.int64(cttz(word))
+                q = ubase + cttz(word)  # unsigned: no negative-index fix
                 word &= word - np.uint64(1)
                 s0, s1, s2 = _decode(code - m[q])
                 if diag:
