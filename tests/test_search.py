@@ -55,9 +55,10 @@ class TestTrajectory:
     @pytest.mark.parametrize("box", list(BOXES))
     @pytest.mark.parametrize("margin", [0.0, 0.5])
     @pytest.mark.parametrize("n_threads", [1, 2])
-    def test_neighbor_search_equals_fresh_and_oracle(self, box, margin, n_threads):
+    @pytest.mark.parametrize("path", ["auto", "columns", "sweep"])
+    def test_neighbor_search_equals_fresh_and_oracle(self, box, margin, n_threads, path):
         box, pbc = BOXES[box]
-        search = NeighborSearch(2.1, rebuild_margin=margin, n_threads=n_threads)
+        search = NeighborSearch(2.1, rebuild_margin=margin, n_threads=n_threads, path=path)
         rebuilt = []
         for pos in _frames(1, 120):
             got = _canon(*search.update(pos, box, pbc=pbc))
@@ -75,12 +76,13 @@ class TestTrajectory:
 
     @pytest.mark.parametrize("box", list(BOXES))
     @pytest.mark.parametrize("clumps", [False, True])
-    def test_contact_search_polydisperse_and_clumps(self, box, clumps):
+    @pytest.mark.parametrize("path", ["auto", "columns", "sweep"])
+    def test_contact_search_polydisperse_and_clumps(self, box, clumps, path):
         box, pbc = BOXES[box]
         rng = np.random.default_rng(5)
         radii = rng.uniform(0.2, 1.0, 150)
         labels = rng.integers(0, 60, 150) if clumps else None
-        search = ContactSearch(skin=0.05, rebuild_margin=0.4, quantities="Pd")
+        search = ContactSearch(skin=0.05, rebuild_margin=0.4, quantities="Pd", path=path)
         for pos in _frames(2, 150):
             got = _canon(*search.update(pos, radii, box, pbc=pbc, clump_ids=labels))
             fresh = ContactSearch(skin=0.05, quantities="Pd").update(
