@@ -455,10 +455,20 @@ class _Search:
             np.take(self._k, perm, axis=0, out=self._ks)
         t1 = time.perf_counter()
         times["sort"] = t1 - t0
-        # chunks of whole columns with about equal particle counts
+        # chunks of whole columns with about equal candidate counts, estimated as
+        # a column's particles times those of its 3 x 3 neighbourhood (uniform
+        # frames: equal particle counts); they depend on the input only
         n_chunks = int(min(ncol, max(1, n // _CHUNK), _MAX_CHUNKS))
-        targets = (np.arange(1, n_chunks) * n) // n_chunks
-        cuts = np.searchsorted(start, targets, side="left")
+        occ = np.diff(start).reshape(nb0, nb1).astype(np.float64)
+        near = occ.copy()
+        for s0 in (-1, 0, 1):
+            for s1 in (-1, 0, 1):
+                if s0 or s1:
+                    near += np.roll(occ, (s0, s1), axis=(0, 1))
+        weight = np.zeros(ncol + 1)
+        np.cumsum((occ * near).ravel(), out=weight[1:])
+        targets = np.arange(1, n_chunks) * (weight[-1] / n_chunks)
+        cuts = np.searchsorted(weight, targets, side="left")
         chunk_cols = np.unique(np.concatenate([[0], cuts, [ncol]])).astype(np.int64)
         n_chunks = len(chunk_cols) - 1
         self._chunk_rows = start[chunk_cols]

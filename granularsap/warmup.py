@@ -6,9 +6,11 @@ most of its time compiling, every later run loads the compiled code in a
 fraction of a second.  ``granularsap warmup`` calls the public functions the
 command line uses (:func:`granularsap.sphere_contacts`,
 :func:`~granularsap.neighbor_pairs`, :func:`~granularsap.clump_contacts`,
-:func:`~granularsap.box_overlaps`) on tiny inputs, open and periodic, so that
-the cache is filled before the first real run (useful in a container image or
-before starting many worker processes).
+:func:`~granularsap.box_overlaps`, and the boxes' column path) on tiny inputs,
+open and periodic, with one thread and with two (the serial kernels small
+inputs take and the parallel ones large inputs take), so that the cache is
+filled before the first real run (useful in a container image or before
+starting many worker processes).
 
 :func:`compile_notice` is how the command line notices a cold cache: it
 listens to numba's ``numba:compile`` event (numba's documented event API),
@@ -131,23 +133,32 @@ def warmup(functions=FUNCTIONS):
     unknown = [f for f in functions if f not in FUNCTIONS]
     if unknown:
         raise ValueError(f"unknown function {unknown[0]!r}; choose from {', '.join(FUNCTIONS)}")
+    import numba
+
     pos, radii, clumps, boxes = _inputs()
+    # one thread runs the serial kernels; more threads the parallel ones, which
+    # large inputs take
+    threads = (1, 2) if numba.config.NUMBA_NUM_THREADS >= 2 else (1,)
     t0 = time.perf_counter()
     with compile_notice(quiet=True) as counter:
-        for name in functions:
+        for name, nt in ((name, nt) for name in functions for nt in threads):
             if name == "box_overlaps":
-                granularsap.box_overlaps(pos - radii[:, None], pos + radii[:, None])
+                lower, upper = pos - radii[:, None], pos + radii[:, None]
+                granularsap.box_overlaps(lower, upper, n_threads=nt)
+                granularsap.SweepAndPrune(path="columns", n_threads=nt).update(lower, upper)
                 continue
             for box in boxes:
                 if name == "sphere_contacts":
                     for dist in (False, True):
                         granularsap.sphere_contacts(pos, radii, skin=0.05, box=box,
-                                                    return_distances=dist)
+                                                    return_distances=dist, n_threads=nt)
                 elif name == "neighbor_pairs":
                     for dist in (False, True):
-                        granularsap.neighbor_pairs(pos, 0.6, box=box, return_distances=dist)
+                        granularsap.neighbor_pairs(pos, 0.6, box=box, return_distances=dist,
+                                                   n_threads=nt)
                 else:
-                    granularsap.clump_contacts(pos, radii, clumps, skin=0.05, box=box)
+                    granularsap.clump_contacts(pos, radii, clumps, skin=0.05, box=box,
+                                               n_threads=nt)
     return {"seconds": time.perf_counter() - t0, "compiled": counter.count}
 
 
