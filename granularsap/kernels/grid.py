@@ -686,9 +686,10 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
     """A Verlet frame on a list of records: pass 1 (``fill`` False) counts each
     chunk's pairs in range into ``counts``, pass 2 writes them from
     ``offsets[c]`` (rows as ``narrow_fill``'s).  Each entry's shift is corrected
-    by the image jumps of its two particles since the build, as ``_entry`` does;
-    ``uniform`` and ``x2`` as for ``_hit``, ``diag`` a diagonal cell (the zero
-    terms of ``_separation``'s sum are left out: no square changes)."""
+    by the image jumps of its two particles since the build, as ``_entry`` does
+    (the record's shift, with ``p``'s jump, serves every partner that jumped as
+    ``p`` did, usually all); ``uniform`` and ``x2`` as for ``_hit``, ``diag`` a
+    diagonal cell."""
     incl = not strict
     for c in numba.prange(wstart.shape[0]):
         o = offsets[c] if fill else 0
@@ -697,7 +698,19 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
         for r in range(wstart[c], wstart[c] + wneed[c]):
             p = np.int64(rec_p[r])
             base = np.int64(rec_q[r])
-            code = rec_s[r] + m[p]
+            mp = m[p]
+            code = rec_s[r] + mp
+            t0, t1, t2 = _decode(code)
+            # the record's shift terms, added in _separation's order
+            ax = t0 * cell[0, 0]
+            ay = t0 * cell[0, 1]
+            az = t0 * cell[0, 2]
+            bx = t1 * cell[1, 0]
+            by = t1 * cell[1, 1]
+            bz = t1 * cell[1, 2]
+            cx = t2 * cell[2, 0]
+            cy = t2 * cell[2, 1]
+            cz = t2 * cell[2, 2]
             xp = ws[p, 0]
             yp = ws[p, 1]
             zp = ws[p, 2]
@@ -708,12 +721,19 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
             while word:
                 q = ubase + cttz(word)  # unsigned: no negative-index fix
                 word &= word - np.uint64(1)
-                s0, s1, s2 = _decode(code - m[q])
-                if diag:
-                    dx = (ws[q, 0] - xp) + s0 * cell[0, 0]
-                    dy = (ws[q, 1] - yp) + s1 * cell[1, 1]
-                    dz = (ws[q, 2] - zp) + s2 * cell[2, 2]
+                mq = m[q]
+                s0, s1, s2 = t0, t1, t2
+                if mq == 0:
+                    if diag:
+                        dx = (ws[q, 0] - xp) + ax
+                        dy = (ws[q, 1] - yp) + by
+                        dz = (ws[q, 2] - zp) + cz
+                    else:
+                        dx = (((ws[q, 0] - xp) + ax) + bx) + cx
+                        dy = (((ws[q, 1] - yp) + ay) + by) + cy
+                        dz = (((ws[q, 2] - zp) + az) + bz) + cz
                 else:
+                    s0, s1, s2 = _decode(code - mq)
                     dx, dy, dz = _separation(ws, p, q, cell, s0, s1, s2)
                 d2 = dx * dx + dy * dy + dz * dz
                 if not fill:
