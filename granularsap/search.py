@@ -600,10 +600,15 @@ class _Search:
                         f"sweep {sw:.0f} ns")
 
     def _measured(self, tested, pairs, seconds, n):
+        """Record a build's seconds per particle: the column sweep's latest until the
+        paper's sweep is tried, then both are kept until the next trial, so that
+        timing noise never flips the choice back and forth."""
         a = self._auto
-        a[self._path_now] = seconds / n
-        if self._path_now == "columns" and tested is not None:
-            a["cpp"] = tested / max(pairs, 1)
+        path = self._path_now
+        if a[path] is None or (path == "columns" and a["sweep"] is None):
+            a[path] = seconds / n
+            if path == "columns" and tested is not None:
+                a["cpp"] = tested / max(pairs, 1)
 
     def _sweep_build(self, cell, pbc, minimum, reach, use_label, n, times):
         """The Verlet list from the paper's Sweep and Prune over bounding cubes."""
