@@ -40,6 +40,7 @@ import functools
 import os
 import sys
 import threading
+import types
 import warnings
 
 import numba
@@ -171,6 +172,18 @@ def pjit(func):
     Kernels must be called from Python, not from other kernels (the returned
     object serialises calls under the ``workqueue`` layer)."""
     return _ParallelKernel(numba.njit(parallel=True, **_OPTIONS)(func))
+
+
+def serial_twin(kernel):
+    """The serial build of a parallel kernel (``prange`` runs as ``range``): no
+    thread-pool launch per call, for small inputs and one thread.  A renamed
+    copy of the function, so that its compile cache is its own."""
+    f = kernel.py_func
+    g = types.FunctionType(f.__code__, f.__globals__, f.__name__ + "_serial", f.__defaults__,
+                           f.__closure__)
+    g.__qualname__ = f.__qualname__ + "_serial"
+    g.__doc__ = f.__doc__
+    return jit(g)
 
 
 def max_threads() -> int:

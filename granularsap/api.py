@@ -22,6 +22,7 @@ from ._numba import num_threads
 from ._validate import as_coords, check_n_threads
 from .kernels import boxgrid as bg
 from .kernels import checks as _checks
+from .kernels import grid as column_kernels
 from .kernels import radixsort as rs
 from .kernels import succtree as st
 from .kernels import sweep as sw
@@ -644,7 +645,7 @@ class SweepAndPrune:
             self._g_start = np.empty(ncol + 2, np.int64)
             self._g_chunks = np.empty(ncol + 2, np.int64)
         start = self._g_start[:ncol + 2]
-        bg.counting_sort(self._g_col, self._g_prev, ncol + 1, start, self._g_perm)
+        column_kernels.counting_sort(self._g_col, self._g_prev, ncol + 1, start, self._g_perm)
         self._g_binned = (self._frame, grid, fresh)
         return grid
 

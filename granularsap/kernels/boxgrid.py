@@ -67,13 +67,13 @@ re-run alone when it overflows), so results do not depend on the thread count.
 from __future__ import annotations
 
 import math
-import types
 from types import SimpleNamespace
 
 import numba
 import numpy as np
 
-from .._numba import ijit, jit, pjit
+from .._numba import ijit, jit, pjit, serial_twin
+from .grid import lower_bound
 
 #: exponent buckets of the size histogram: 0 holds zero-size boxes, ``b``
 #: holds sides with ``frexp`` exponent ``b - OFFSET`` (``2**(e-1) <= r < 2**e``),
@@ -186,24 +186,6 @@ def bin_boxes(lower, upper, c0, c1, o0, o1, inv0, inv1, nb0, nb1, big_bucket, n_
             x = 0.5 * lower[i, c0] + 0.5 * upper[i, c0]
             y = 0.5 * lower[i, c1] + 0.5 * upper[i, c1]
             col[i] = _cell(x, o0, inv0, nb0) * nb1 + _cell(y, o1, inv1, nb1)
-
-
-@jit
-def counting_sort(col, prev, nbins, start, perm):
-    """Stable counting sort of the order ``prev`` by ``col``; ``start`` (nbins + 1)."""
-    n = prev.shape[0]
-    for c in range(nbins + 1):
-        start[c] = 0
-    for i in range(n):
-        start[col[i] + 1] += 1
-    for c in range(nbins):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    for r in range(n):
-        i = prev[r]
-        c = col[i]
-        perm[fill[c]] = i
-        fill[c] += 1
 
 
 @jit
@@ -466,17 +448,6 @@ def sweep(chunk_cols, start, nb0, nb1, o0, o1, inv0, inv1, h0, h1, rz, half, xl,
 
 
 @jit
-def _lower_bound(arr, lo, hi, v):
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if arr[mid] < v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
-@jit
 def _big_chunk(b_lo, b_hi, big0, start, nb0, nb1, o0, o1, inv0, inv1, reach_z, xl, xu, yl,
                yu, zl, zu, perm, out, base, cap):
     """Big boxes ``[b_lo, b_hi)`` (positions ``big0 + k`` of the column order)
@@ -505,7 +476,7 @@ def _big_chunk(b_lo, b_hi, big0, start, nb0, nb1, o0, o1, inv0, inv1, reach_z, x
                 hi = start[col + 1]
                 if lo == hi:
                     continue
-                q = _lower_bound(zl, lo, hi, zfrom)
+                q = lower_bound(zl, lo, hi, zfrom)
                 while q < hi and zl[q] <= bzu:
                     tested += 1
                     ok = ((xl[q] <= bxu) & (bxl <= xu[q]) & (yl[q] <= byu) & (byl <= yu[q])
@@ -551,18 +522,6 @@ def assemble(out, reg_start, need, pairs):
 # ------------------------------------------------------------ serial twins
 
 
-def _twin(kernel):
-    """The serial build of a parallel kernel (``prange`` runs as ``range``): no
-    thread-pool launch per call, for small inputs and one thread.  A renamed
-    copy of the function, so that its compile cache is its own."""
-    f = kernel.py_func
-    g = types.FunctionType(f.__code__, f.__globals__, f.__name__ + "_serial", f.__defaults__,
-                           f.__closure__)
-    g.__qualname__ = f.__qualname__ + "_serial"
-    g.__doc__ = f.__doc__
-    return jit(g)
-
-
 #: the parallel kernels of this module, compiled serially (same names)
-serial = SimpleNamespace(**{name: _twin(globals()[name]) for name in (
+serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in (
     "measure", "bin_boxes", "sort_columns", "sweep", "sweep_big", "assemble")})

@@ -74,13 +74,12 @@ region, so no two threads share an output slot.
 from __future__ import annotations
 
 import math
-import types
 from types import SimpleNamespace
 
 import numba
 import numpy as np
 
-from .._numba import ijit, jit, pjit
+from .._numba import ijit, jit, pjit, serial_twin
 from .bits import ctpop, cttz
 
 #: fractional coordinates at or beyond this magnitude cannot be wrapped
@@ -316,7 +315,8 @@ def gather(perm, t, w, rad, label, ts, ws, rs, ls, use_label):
 
 
 @jit
-def _lower_bound(arr, lo, hi, v):
+def lower_bound(arr, lo, hi, v):
+    """First index in ``[lo, hi)`` of the sorted ``arr`` with ``arr[i] >= v``."""
     while lo < hi:
         mid = (lo + hi) >> 1
         if arr[mid] < v:
@@ -457,7 +457,7 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
             if not own:
                 first = tz[lo_c] - dmax
                 k = int(math.floor(first)) - 1 if p2 else 0
-                q = _lower_bound(tz, lo2, hi2, first - k)
+                q = lower_bound(tz, lo2, hi2, first - k)
                 if q == hi2:
                     if not p2:
                         continue
@@ -870,19 +870,7 @@ def csr_from_pairs(n, pairs, dist, want_d, offsets, col, cd):
 # ------------------------------------------------------------ serial twins
 
 
-def _twin(kernel):
-    """The serial build of a parallel kernel (``prange`` runs as ``range``): no
-    thread-pool launch per call, for small inputs and ``n_threads=1``.  A
-    renamed copy of the function, so that its compile cache is its own."""
-    f = kernel.py_func
-    g = types.FunctionType(f.__code__, f.__globals__, f.__name__ + "_serial", f.__defaults__,
-                           f.__closure__)
-    g.__qualname__ = f.__qualname__ + "_serial"
-    g.__doc__ = f.__doc__
-    return jit(g)
-
-
 #: the parallel kernels of this module, compiled serially (same names)
-serial = SimpleNamespace(**{name: _twin(globals()[name]) for name in (
+serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in (
     "wrap", "wrap_sorted", "sort_columns", "gather", "direct_count",
     "direct_fill", "records_narrow", "narrow_count", "narrow_fill")})
