@@ -151,14 +151,14 @@ def _wrap(x, cell, pbc):
 def test_shift_codes_match_the_engine():
     for s in [(0, 0, 0), (1, -1, 0), (-511, 511, 3), (511, -511, -511), (2, 0, -7)]:
         code = encode_shift(*s)
-        assert code == grid._encode(*s)
-        assert tuple(grid._decode(code)) == s == decode_shift(code)
-    assert ZERO_SHIFT == grid._encode(0, 0, 0)
+        assert code == grid.encode(*s)
+        assert tuple(grid.decode(code)) == s == decode_shift(code)
+    assert ZERO_SHIFT == grid.encode(0, 0, 0)
     a = np.array([-3, 0, 5])
     codes = encode_shift(a, -a, a * 2)
     assert codes.dtype == np.int32
     for k in range(3):
-        assert tuple(grid._decode(int(codes[k]))) == (a[k], -a[k], 2 * a[k])
+        assert tuple(grid.decode(int(codes[k]))) == (a[k], -a[k], 2 * a[k])
     with pytest.raises(ValueError, match="shift components"):
         encode_shift(512, 0, 0)
     with pytest.raises(TypeError):
@@ -173,7 +173,7 @@ def test_returned_codes_decode_as_the_engine_decodes():
                                              True)
     assert len(vs)
     for code in vs:
-        assert tuple(grid._decode(int(code))) == decode_shift(int(code))
+        assert tuple(grid.decode(int(code))) == decode_shift(int(code))
         assert encode_shift(*decode_shift(int(code))) == code
 
 

@@ -39,24 +39,11 @@ import numba
 import numpy as np
 
 from .._numba import ijit, pjit
+from .grid import OFF, ZERO, encode
 
-OFF = 512  # bias of one 10-bit shift field
-ZERO = (OFF << 20) | (OFF << 10) | OFF  # the code of a zero shift
 #: largest |S_c| a code holds (a field is 10 bits, biased by 512; one is left
 #: so that a negated shift is still a code)
 MAX_SHIFT = OFF - 1
-
-
-@ijit
-def encode(s0, s1, s2):
-    """Packed shift code of ``(s0, s1, s2)`` (``grid.py``'s layout)."""
-    return ((s0 + OFF) << 20) | ((s1 + OFF) << 10) | (s2 + OFF)
-
-
-@ijit
-def decode(code):
-    """``(s0, s1, s2)`` of a packed shift code."""
-    return (code >> 20) - OFF, ((code >> 10) & 1023) - OFF, (code & 1023) - OFF
 
 
 @ijit

@@ -85,18 +85,21 @@ from .bits import ctpop, cttz
 #: fractional coordinates at or beyond this magnitude cannot be wrapped
 #: meaningfully (the wrapped value keeps no significant bits)
 WRAP_LIMIT = 2.0 ** 52
-_OFF = 512  # bias of one 10-bit shift field
-_ZERO = (_OFF << 20) | (_OFF << 10) | _OFF  # the code of a zero shift
+OFF = 512  # bias of one 10-bit shift field
+ZERO = (OFF << 20) | (OFF << 10) | OFF  # the code of a zero shift
 
 
 @ijit
-def _encode(s0, s1, s2):
-    return ((s0 + _OFF) << 20) | ((s1 + _OFF) << 10) | (s2 + _OFF)
+def encode(s0, s1, s2):
+    """Packed int32 code of the lattice shift ``(s0, s1, s2)``: three 10-bit fields
+    biased by ``OFF``."""
+    return ((s0 + OFF) << 20) | ((s1 + OFF) << 10) | (s2 + OFF)
 
 
 @ijit
-def _decode(code):
-    return (code >> 20) - _OFF, ((code >> 10) & 1023) - _OFF, (code & 1023) - _OFF
+def decode(code):
+    """``(s0, s1, s2)`` of a packed shift code."""
+    return (code >> 20) - OFF, ((code >> 10) & 1023) - OFF, (code & 1023) - OFF
 
 
 @ijit
@@ -213,7 +216,7 @@ def wrap_sorted(x, perm, hinv, cell, diag, pbc, t_build, n_chunks, t, k, w, m, d
             if pbc[2]:
                 m2 = np.int64(math.floor(f2 + 0.5))
                 f2 -= m2
-            m[p] = _encode(m0, m1, m2) - _ZERO
+            m[p] = encode(m0, m1, m2) - ZERO
             dx = f0 * cell[0, 0] + f1 * cell[1, 0] + f2 * cell[2, 0]
             dy = f0 * cell[0, 1] + f1 * cell[1, 1] + f2 * cell[2, 1]
             dz = f0 * cell[0, 2] + f1 * cell[1, 2] + f2 * cell[2, 2]
@@ -586,7 +589,7 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                                 words[r] = word
                                 rec_p[r] = p
                                 rec_q[r] = base
-                                rec_s[r] = _encode(s0, s1, ka)
+                                rec_s[r] = encode(s0, s1, ka)
                             w += 1
                             cnt += np.int64(ctpop(word))
                     qa = lo2
@@ -603,7 +606,7 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
     for r in range(r_lo, r_hi):
         p = np.int64(rec_p[r])
         base = np.int64(rec_q[r])
-        s0, s1, s2 = _decode(rec_s[r])
+        s0, s1, s2 = decode(rec_s[r])
         ax = s0 * cell[0, 0]
         ay = s0 * cell[0, 1]
         az = s0 * cell[0, 2]
@@ -700,7 +703,7 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
             base = np.int64(rec_q[r])
             mp = m[p]
             code = rec_s[r] + mp
-            t0, t1, t2 = _decode(code)
+            t0, t1, t2 = decode(code)
             # the record's shift terms, added in _separation's order
             ax = t0 * cell[0, 0]
             ay = t0 * cell[0, 1]
@@ -733,7 +736,7 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
                         dy = (((ws[q, 1] - yp) + ay) + by) + cy
                         dz = (((ws[q, 2] - zp) + az) + bz) + cz
                 else:
-                    s0, s1, s2 = _decode(code - mq)
+                    s0, s1, s2 = decode(code - mq)
                     dx, dy, dz = _separation(ws, p, q, cell, s0, s1, s2)
                 d2 = dx * dx + dy * dy + dz * dz
                 if not fill:
@@ -766,7 +769,7 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
 def _entry(code, m, p, q):
     """Shift of a Verlet entry now: ``S - m_q + m_p`` on the packed codes (the
     biased 10-bit fields never borrow), decoded."""
-    return _decode(code - m[q] + m[p])
+    return decode(code - m[q] + m[p])
 
 
 @pjit
