@@ -132,6 +132,15 @@ def _level_split(rad, rmax, reach, n, volume):
     return choice if best < single * 0.75 else None
 
 
+def _exact_bound(rad, skin, strict):
+    """(uniform, x2): whether every pair has one threshold ``2 r + skin``, and then
+    the squared bound that decides it exactly (``_square_bound``)."""
+    uniform = bool(rad.min() == rad.max())
+    if not uniform:
+        return False, 0.0
+    return True, _square_bound(float(rad[0]) + float(rad[0]) + skin, strict)
+
+
 def _resolve_cell(box, pbc):
     """(cell matrix, pbc) of ``box`` and ``pbc``: the Cell's full matrix (zero rows of
     open axes completed), or None for open boundaries."""
@@ -324,7 +333,7 @@ class _Search:
                                  n, rmax, reach_max, minimum, key, times)
             self._rebuilds += 1
         t0 = time.perf_counter()
-        total = self._direct_total if self._direct_done else self._narrow(skin, cell_k)
+        total = self._direct_total if self._direct_done else self._narrow(skin, cell_k, diag)
         if (cell is not None and minimum and total
                 and 2.0 * reach_max >= periodic.perpendicular_widths(cell_k)[pbc].min()
                 * (1.0 - 1e-9)):
@@ -551,9 +560,7 @@ class _Search:
         self._direct_done = True
         self._vneed = np.zeros(0, np.int64)
         strict = not self.include_cutoff
-        uniform = bool(rad.min() == rad.max())
-        thr = float(rad[0]) + float(rad[0]) + skin if uniform else 0.0
-        x2 = _square_bound(thr, strict) if uniform else 0.0
+        uniform, x2 = _exact_bound(rad, skin, strict)
         tests = (diag, stencil, rmax, reach, inv_w2, not minimum, skin, strict, uniform, x2)
         counts, tested, wstart, wneed = self._pass1(geometry, tests, levels, False)
         offsets = np.zeros(len(counts), np.int64)
@@ -631,7 +638,7 @@ class _Search:
         times["build"] = time.perf_counter() - t0
         return int(self._sweeper.stats.get("sweep_candidates_tested") or len(vb))
 
-    def _narrow(self, skin, cell):
+    def _narrow(self, skin, cell, diag):
         """A Verlet frame: re-test the kept list (count pass, then fill pass)."""
         if self._n == 0:
             self._alloc_output(0)
@@ -639,11 +646,7 @@ class _Search:
         strict = not self.include_cutoff
         q = self.quantities
         wants = ("d" in q, "D" in q, "S" in q)
-        rad = self._rs
-        uniform = bool(rad.min() == rad.max())
-        thr = float(rad[0]) + float(rad[0]) + skin if uniform else 0.0
-        x2 = _square_bound(thr, strict) if uniform else 0.0
-        diag = not np.any(cell - np.diag(np.diag(cell)))
+        uniform, x2 = _exact_bound(self._rs, skin, strict)
         tests = (cell, diag, strict, uniform, x2)
         if self._rows_list:  # the list of the paper's sweep, by particle row
             rows = self._chunk_rows
