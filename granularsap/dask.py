@@ -456,12 +456,14 @@ def _resolve_client(client):
     elif isinstance(client, str):
         distributed = _need_distributed("client given as an address")
         client = distributed.Client(client)
-    elif not hasattr(client, "scatter") or not hasattr(client, "scheduler_info"):
+    elif not hasattr(client, "scatter") or not hasattr(client, "nthreads"):
         raise TypeError(f"client must be a dask.distributed Client, a scheduler address or "
                         f"None, got {type(client).__name__}")
     if client is None:
         return None, os.cpu_count() or 1
-    workers = len(client.scheduler_info().get("workers", {}))
+    # nthreads() asks the scheduler directly; scheduler_info() returns a cache
+    # that the client's periodic refresh may have emptied of workers meanwhile
+    workers = len(client.nthreads())
     return client, max(1, workers)
 
 

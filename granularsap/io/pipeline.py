@@ -402,7 +402,7 @@ class _DaskRunner:
             self.cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1,
                                         processes=True, dashboard_address=None)
             self.client = Client(self.cluster)
-        n = len(self.client.scheduler_info().get("workers", {})) or int(workers or 1)
+        n = len(self.client.nthreads()) or int(workers or 1)
         self.window = 2 * n + 1
 
     def map_ordered(self, frames, params):
