@@ -249,6 +249,8 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
                              f"line, got {text[:40]!r}")
                     fail(f"expected an 'ITEM:' line, got {text[:40]!r}")
                 first_line = False
+                if not line.endswith("\n"):  # LAMMPS ends every line: cut mid-line
+                    fail("truncated: the file ends in the middle of a header line")
                 item = text[5:].strip()
                 if item.startswith("TIMESTEP"):
                     val = src.next()
@@ -326,8 +328,12 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
             rows = src.take(natoms)
             if len(rows) != natoms:
                 fail(f"truncated: expected {natoms} atom rows, got {len(rows)}")
-            yield _build_frame(path, first_index + index, names, rows, header, coordinates,
-                               first_row, frame_start)
+            frame = _build_frame(path, first_index + index, names, rows, header, coordinates,
+                                 first_row, frame_start)
+            if rows and not rows[-1].endswith("\n"):  # its last value may be cut short
+                fail(f"truncated: the file ends in the middle of atom row {natoms} of {natoms} "
+                     "(no end of line)")
+            yield frame
             line = src.next()
 
 
