@@ -14,7 +14,8 @@ MDAnalysis would use (``method=None`` chooses like MDAnalysis does):
 * ``nsgrid``: coordinates wrapped by ``apply_PBC``; float32 differences;
   orthorhombic "lazy" image (one box shift past half a box), triclinic
   27-image search; ``d**2 <= cutoff**2`` with the cutoff and its square in
-  float32.
+  double (``FastNS.cutoff`` is a C double in MDAnalysis 2.x: a cutoff that is
+  not a float32 number, such as ``sqrt(2)``, is not rounded to float32).
 * ``pkdtree`` decides inside scipy's KD-tree; candidates keep granularsap's
   float64 minimum-image decision.
 
@@ -117,6 +118,43 @@ def choose_method(n_ref, n_conf, max_cutoff, box32, coords, method):
     return "bruteforce" if np.any(max_cutoff > 0.3 * size) else "nsgrid"
 
 
+def nsgrid_refuses(max_cutoff, box32):
+    """True if MDAnalysis's ``FastNS`` raises "Cutoff ... too large for box" for
+    ``max_cutoff`` in the periodic box ``box32``.
+
+    Its limit (``_prepare_box`` in nsgrid.pyx) is half the smallest of the
+    cell's diagonal elements times the sines of the angles, in float32 with
+    the C library's ``sinf``; numpy reproduces it to a unit in the last place,
+    and a cutoff that close to it is put to MDAnalysis itself (one coordinate:
+    the grid of a cutoff that large has a few cells).
+    """
+    from MDAnalysis.lib.mdamath import triclinic_vectors
+
+    box32 = np.asarray(box32, dtype=np.float32)
+    tv = triclinic_vectors(box32).reshape(9).astype(np.float32)
+    sines = [np.float32(math.sin(float(np.float32(float(x) * (math.pi / 180.0)))))
+             for x in box32[3:6]]
+    xx, yy, zz = tv[0], tv[4], tv[8]
+    limit = float(min(yy * sines[0], zz * sines[0], xx * sines[1], zz * sines[1],
+                      xx * sines[2], yy * sines[2])) / 2.0
+    c = float(max_cutoff)
+    if abs(c - limit) > 1e-6 * limit:
+        return c > limit
+    from MDAnalysis.lib.nsgrid import FastNS
+
+    try:
+        FastNS(c, np.zeros((1, 3), np.float32), box32)
+    except ValueError:
+        return True
+    return False
+
+
+def _nsgrid_cutoff2(max_cutoff):
+    """``cutoff2`` of nsgrid.pyx: ``self.cutoff * self.cutoff``, both doubles."""
+    c = float(max_cutoff)
+    return c * c
+
+
 def decide(ref32, conf32, a, b, box32, max_cutoff, method):
     """Distances (float64) and a keep-mask for candidates ``(ref[a], conf[b])``
     under MDAnalysis method ``method``; ``None`` if the method is not emulated."""
@@ -138,8 +176,7 @@ def decide(ref32, conf32, a, b, box32, max_cutoff, method):
         dx = (q - p).astype(np.float64)
         d2 = (dx[:, 0] * dx[:, 0]) + (dx[:, 1] * dx[:, 1]) + (dx[:, 2] * dx[:, 2])
         if method == "nsgrid":
-            c = np.float32(max_cutoff)
-            return np.sqrt(d2), d2 <= np.float64(c * c)
+            return np.sqrt(d2), d2 <= _nsgrid_cutoff2(max_cutoff)
         d = np.sqrt(d2)
         return d, d <= max_cutoff
     from MDAnalysis.lib.distances import apply_PBC
@@ -165,8 +202,7 @@ def decide(ref32, conf32, a, b, box32, max_cutoff, method):
         dx = bx.astype(np.float64) * (s - _c_round(s))
     d2 = (dx[:, 0] * dx[:, 0]) + (dx[:, 1] * dx[:, 1]) + (dx[:, 2] * dx[:, 2])
     if method == "nsgrid":
-        c = np.float32(max_cutoff)
-        return np.sqrt(d2), d2 <= np.float64(c * c)
+        return np.sqrt(d2), d2 <= _nsgrid_cutoff2(max_cutoff)
     d = np.sqrt(d2)
     return d, d <= max_cutoff
 

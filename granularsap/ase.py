@@ -310,12 +310,21 @@ def primitive_neighbor_list(quantities, pbc, cell, positions, cutoff, numbers=No
     D = np.concatenate([D, -D])
     d = np.concatenate([d, d])
     if self_interaction:
-        idx = np.arange(n, dtype=np.int64)
+        # ASE tests the self pair like any other, d = 0 < cutoff: an atom whose
+        # cutoff with itself is zero is not its own neighbour
+        if table is not None:
+            own = table[numbers, numbers] > 0
+        elif np.ndim(cutoff) == 0:
+            own = np.full(n, float(cutoff) > 0)
+        else:
+            own = rad > 0
+        idx = np.flatnonzero(own).astype(np.int64)
+        k = len(idx)
         i = np.concatenate([i, idx])
         j = np.concatenate([j, idx])
-        S = np.concatenate([S, np.zeros((n, 3), np.int64)])
-        D = np.concatenate([D, np.zeros((n, 3))])
-        d = np.concatenate([d, np.zeros(n)])
+        S = np.concatenate([S, np.zeros((k, 3), np.int64)])
+        D = np.concatenate([D, np.zeros((k, 3))])
+        d = np.concatenate([d, np.zeros(k)])
     # deterministic rows: by i, then j, then the shift S (lexicographically)
     order = np.lexsort((S[:, 2], S[:, 1], S[:, 0], j, i))
     values = {"i": i[order], "j": j[order], "S": S[order], "D": D[order], "d": d[order]}

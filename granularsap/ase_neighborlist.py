@@ -210,10 +210,11 @@ class NeighborList:
             second = np.concatenate([j, i])
             offsets = np.concatenate([shift, -shift])
         if self.self_interaction:
-            own = np.arange(n, dtype=np.int64)
+            # ASE tests the self pair like any other, 0 < 2 (cutoff + skin)
+            own = np.flatnonzero(self._radii > 0).astype(np.int64)
             first = np.concatenate([first, own])
             second = np.concatenate([second, own])
-            offsets = np.concatenate([offsets, np.zeros((n, 3), np.int64)])
+            offsets = np.concatenate([offsets, np.zeros((len(own), 3), np.int64)])
         order = np.lexsort((offsets[:, 2], offsets[:, 1], offsets[:, 0], second, first))
         self._second = np.ascontiguousarray(second[order], dtype=np.int64)
         self._offsets = np.ascontiguousarray(offsets[order], dtype=np.int64)

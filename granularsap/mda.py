@@ -144,21 +144,22 @@ def _mda_box32(box):
     return (None if box is None else np.asarray(box, dtype=np.float32),)
 
 
-def _decide_like_mdanalysis(ref, conf, a, b, dist, box32, max_cutoff, method,
-                            beyond=False):
+def _decide_like_mdanalysis(ref, conf, a, b, dist, box32, max_cutoff, method):
     """Re-decide candidates ``(ref[a], conf[b])`` with the arithmetic of the
     MDAnalysis method that would run (granularsap._mda_arith).
 
-    ``beyond``: the cutoff exceeds half the cell, where MDAnalysis's nsgrid
-    raises "Cutoff ... too large for box"; the drop-in answers with the
-    arithmetic of MDAnalysis's bruteforce method instead.
+    Where MDAnalysis's nsgrid would raise "Cutoff ... too large for box" (its
+    own limit, ``_mda_arith.nsgrid_refuses``; a cutoff of exactly half the box
+    runs), the drop-in answers with the arithmetic of MDAnalysis's bruteforce
+    method instead.
     """
     ref32 = ref.astype(np.float32)
     conf32 = ref32 if conf is None else conf.astype(np.float32)
     chosen = _mda_arith.choose_method(len(ref32), None if conf is None else len(conf32),
                                       max_cutoff, box32, ref32 if conf is None else
                                       np.concatenate([ref32, conf32]), method)
-    if beyond and chosen == "nsgrid":
+    if chosen == "nsgrid" and box32 is not None and _mda_arith.nsgrid_refuses(max_cutoff,
+                                                                              box32):
         chosen = "bruteforce"
     decided = _mda_arith.decide(ref32, conf32, a, b, box32, max_cutoff, chosen)
     if decided is None:  # pkdtree: decided inside scipy; keep float64 minimum image
@@ -270,7 +271,7 @@ def self_capped_distance(reference, max_cutoff, min_cutoff=None, box=None, metho
         a, b = pairs[:, 0], pairs[:, 1]
     if emulate is not None:
         a, b, dist = _decide_like_mdanalysis(pos, None, a, b, dist, emulate[0], max_cutoff,
-                                             method, beyond)
+                                             method)
     return _finish(a, b, dist, min_cutoff, return_distances)
 
 
@@ -347,7 +348,7 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
         a, b = pairs[:, 0], pairs[:, 1] - n
     if emulate is not None:
         a, b, dist = _decide_like_mdanalysis(ref, conf, a, b, dist, emulate[0], max_cutoff,
-                                             method, beyond)
+                                             method)
     return _finish(a, b, dist, min_cutoff, return_distances)
 
 
