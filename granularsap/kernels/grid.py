@@ -521,17 +521,17 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                     for base in range(qa, qb, 64):
                         top = min(base + 64, qb)
                         word = np.uint64(0)
+                        # unsigned indices need no wraparound fix (so the loops
+                        # vectorise) and, unlike slices, no reference counting
+                        ub = np.uint64(base)
                         if fast:
                             # the common case written out, so that it vectorises
-                            # (slices: indices from zero need no wraparound)
-                            xq = xs[base:top]
-                            yq = ys[base:top]
-                            zq = zs[base:top]
                             pt = p - base
                             for t in range(top - base):
-                                dx = (xq[t] - xp) + ax
-                                dy = (yq[t] - yp) + by
-                                dz = (zq[t] - zp) + cz
+                                u = ub + np.uint64(t)
+                                dx = (xs[u] - xp) + ax
+                                dy = (ys[u] - yp) + by
+                                dz = (zs[u] - zp) + cz
                                 ok = ((dx * dx + dy * dy + dz * dz <= x2)
                                       & ((pt != t) | self_images))
                                 word |= np.uint64(ok) << np.uint64(t)
@@ -541,31 +541,28 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                             # levels: the first walk pairs small with small, the
                             # second large with small, and large with large from
                             # the lower end
-                            xq = xs[base:top]
-                            yq = ys[base:top]
-                            zq = zs[base:top]
-                            rq = rs[base:top]
-                            bq = big[base:top] if levels else big
                             pt = p - base
                             if diag:
                                 for t in range(top - base):
-                                    dx = (xq[t] - xp) + ax
-                                    dy = (yq[t] - yp) + by
-                                    dz = (zq[t] - zp) + cz
-                                    thr = rp + rq[t] + skin
+                                    u = ub + np.uint64(t)
+                                    dx = (xs[u] - xp) + ax
+                                    dy = (ys[u] - yp) + by
+                                    dz = (zs[u] - zp) + cz
+                                    thr = rp + rs[u] + skin
                                     ok = dx * dx + dy * dy + dz * dz <= thr * thr * loose
                                     if levels:
-                                        ok = ok & ((bq[t] == 0) | (second & (pt < t)))
+                                        ok = ok & ((big[u] == 0) | (second & (pt < t)))
                                     word |= np.uint64(ok) << np.uint64(t)
                             else:
                                 for t in range(top - base):
-                                    dx = (((xq[t] - xp) + ax) + bx) + cx
-                                    dy = (((yq[t] - yp) + ay) + by) + cy
-                                    dz = (((zq[t] - zp) + az) + bz) + cz
-                                    thr = rp + rq[t] + skin
+                                    u = ub + np.uint64(t)
+                                    dx = (((xs[u] - xp) + ax) + bx) + cx
+                                    dy = (((ys[u] - yp) + ay) + by) + cy
+                                    dz = (((zs[u] - zp) + az) + bz) + cz
+                                    thr = rp + rs[u] + skin
                                     ok = dx * dx + dy * dy + dz * dz <= thr * thr * loose
                                     if levels:
-                                        ok = ok & ((bq[t] == 0) | (second & (pt < t)))
+                                        ok = ok & ((big[u] == 0) | (second & (pt < t)))
                                     word |= np.uint64(ok) << np.uint64(t)
                             bits = word
                             while bits:
