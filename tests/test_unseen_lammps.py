@@ -105,3 +105,63 @@ def test_dump_cut_inside_its_last_number_is_truncated(lammps_run):
     head.write_bytes(text[:at + 12])
     with pytest.raises(DumpFormatError, match="truncated"):
         list(iter_frames(head))
+
+
+def _edit_row(text, frame, row, column, value):
+    """``text`` with one value of atom row ``row`` of frame ``frame`` replaced."""
+    lines = text.splitlines(keepends=True)
+    starts = [k for k, line in enumerate(lines) if line.startswith("ITEM: ATOMS")]
+    names = lines[starts[frame]].split()[2:]
+    k = starts[frame] + 1 + row
+    parts = lines[k].split()
+    atom_id = int(parts[names.index("id")])
+    parts[names.index(column)] = value
+    lines[k] = " ".join(parts) + "\n"
+    return "".join(lines), atom_id
+
+
+@pytest.mark.parametrize("column, value, what", [("x", "nan", "non-finite position"),
+                                                 ("z", "1e400", "non-finite position")])
+def test_bad_number_in_a_dump_names_file_frame_and_particle(lammps_run, column, value, what):
+    """A NaN (or an overflowing number) in frame 2 of a dump: the one-line error says where.
+
+    It used to say only "positions must be finite, got NaN or inf in row 218",
+    a row of the frame sorted by id, with neither the file nor the frame.
+    """
+    d, dump = lammps_run
+    text, atom_id = _edit_row(dump.read_text(), 2, 17, column, value)
+    bad = d / f"bad_{column}.dump"
+    bad.write_text(text)
+    r = _contacts(bad, "-o", d / "bad.h5", "--cutoff", "1.2", cwd=d)
+    assert r.returncode == 2
+    (line,) = r.stderr.splitlines()
+    assert f"bad_{column}.dump: frame 2 (step 20): particle id {atom_id} has a {what}" in line
+
+
+def test_negative_radius_in_a_dump_names_the_particle(lammps_run):
+    from granularsap.io import ContactParams, compute_contacts
+
+    d, dump = lammps_run
+    text, atom_id = _edit_row(dump.read_text(), 1, 3, "type", "-2")
+    bad = d / "neg.dump"
+    bad.write_text(text)
+    with pytest.raises(ValueError, match=rf"neg\.dump: frame 1 \(step 10\): particle id "
+                                         rf"{atom_id} has radius -2"):
+        compute_contacts(bad, d / "neg.h5", ContactParams(radius_column="type"))
+
+
+def test_worker_error_is_one_line(lammps_run):
+    """With ``--workers``, a truncated dump is still one line on stderr.
+
+    The local cluster's workers logged the failed task ("Compute Failed", the
+    exception and a traceback) on the same terminal before the run's own line.
+    """
+    pytest.importorskip("distributed")
+    d, dump = lammps_run
+    text = dump.read_text()
+    cut = d / "cut_workers.dump"
+    cut.write_text(text[:text.rindex("ITEM: ATOMS") + 200])
+    r = _contacts(cut, "-o", d / "w.h5", "--cutoff", "1.2", "--workers", "1", cwd=d)
+    assert r.returncode == 2
+    assert r.stderr.splitlines() == [r.stderr.strip()], r.stderr
+    assert "cut_workers.dump: frame 3, line" in r.stderr and "truncated" in r.stderr

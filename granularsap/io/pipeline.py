@@ -16,6 +16,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import itertools
+import logging
 import os
 import time
 from dataclasses import dataclass
@@ -123,6 +124,19 @@ def _radii(frame: Frame, params: ContactParams):
 def lean_frame(frame: Frame, params: ContactParams) -> Frame:
     """A copy with only what :func:`frame_contacts` needs (cheap to ship to a worker)."""
     radius = None if params.cutoff is not None else _radii(frame, params)
+    # bad numbers named by file, frame and particle id (the engine knows only row numbers)
+    where = f"{frame.source}: frame {frame.index} (step {frame.step})"
+    bad = np.flatnonzero(~np.isfinite(frame.positions).all(axis=1))
+    if len(bad):
+        k = bad[0]
+        raise ValueError(f"{where}: particle id {frame.ids[k]} has a non-finite position "
+                         f"{frame.positions[k].tolist()} ({len(bad)} such particles)")
+    if radius is not None:
+        bad = np.flatnonzero(~(np.asarray(radius) >= 0) | ~np.isfinite(radius))
+        if len(bad):
+            k = bad[0]
+            raise ValueError(f"{where}: particle id {frame.ids[k]} has radius {radius[k]}; radii "
+                             f"must be finite and non-negative ({len(bad)} such particles)")
     molecule = frame.molecule if params.clumps else None
     if params.clumps and molecule is None:
         raise ValueError(f"{frame.source} frame {frame.index} has no molecule (mol) column "
@@ -399,8 +413,12 @@ class _DaskRunner:
         if scheduler is not None:
             self.client = Client(scheduler)
         else:
+            # silence_logs: a task's error (a truncated dump) reaches the caller as the
+            # run's one-line error; the workers' own "Compute Failed" log would print it
+            # again on the terminal with a traceback
             self.cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1,
-                                        processes=True, dashboard_address=None)
+                                        processes=True, dashboard_address=None,
+                                        silence_logs=logging.CRITICAL)
             self.client = Client(self.cluster)
         n = len(self.client.nthreads()) or int(workers or 1)
         self.window = 2 * n + 1
