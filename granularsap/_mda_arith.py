@@ -170,9 +170,12 @@ def decide(ref32, conf32, a, b, box32, max_cutoff, method):
                 boxsize = (ref32.max(axis=0) - lmin).max()
                 shift = lmin - 0.1 * boxsize
             else:
+                # max_cutoff as the caller gave it: a numpy float64 makes this shift
+                # float64 (NEP 50), a Python float leaves it float32
                 shift = np.concatenate([ref32, conf32]).min(axis=0) - 0.1 * max_cutoff
-            p = p - shift
-            q = q - shift
+            # MDAnalysis subtracts in place from float32 copies
+            p = (p - shift).astype(np.float32)
+            q = (q - shift).astype(np.float32)
         dx = (q - p).astype(np.float64)
         d2 = (dx[:, 0] * dx[:, 0]) + (dx[:, 1] * dx[:, 1]) + (dx[:, 2] * dx[:, 2])
         if method == "nsgrid":

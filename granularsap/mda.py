@@ -161,10 +161,15 @@ def _decide_like_mdanalysis(ref, conf, a, b, dist, box32, max_cutoff, method):
     if chosen == "nsgrid" and box32 is not None and _mda_arith.nsgrid_refuses(max_cutoff,
                                                                               box32):
         chosen = "bruteforce"
-    decided = _mda_arith.decide(ref32, conf32, a, b, box32, max_cutoff, chosen)
-    if decided is None:  # pkdtree: decided inside scipy; keep float64 minimum image
+    if chosen == "pkdtree":
+        # decided inside scipy: the float64 minimum image decides; MDAnalysis then
+        # computes the distances (and applies min_cutoff to them) with calc_bonds,
+        # whose arithmetic is bruteforce's
         keep = dist <= max_cutoff
-        return a[keep], b[keep], dist[keep]
+        a, b = a[keep], b[keep]
+        return a, b, _mda_arith.decide(ref32, conf32, a, b, box32, max_cutoff,
+                                       "bruteforce")[0]
+    decided = _mda_arith.decide(ref32, conf32, a, b, box32, max_cutoff, chosen)
     d, keep = decided
     return a[keep], b[keep], d[keep]
 
@@ -322,6 +327,7 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
 
     ref = _coords(reference, "reference")
     conf = _coords(configuration, "configuration")
+    given_cutoff = max_cutoff  # its type decides MDAnalysis's rounding without a box
     max_cutoff, min_cutoff = _cutoffs(max_cutoff, min_cutoff)
     cell = _box(box)
     method = _check_method(method)
@@ -347,7 +353,7 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
             pos, np.full(len(pos), 0.5 * reach), cell, clump_ids=labels)
         a, b = pairs[:, 0], pairs[:, 1] - n
     if emulate is not None:
-        a, b, dist = _decide_like_mdanalysis(ref, conf, a, b, dist, emulate[0], max_cutoff,
+        a, b, dist = _decide_like_mdanalysis(ref, conf, a, b, dist, emulate[0], given_cutoff,
                                              method)
     return _finish(a, b, dist, min_cutoff, return_distances)
 

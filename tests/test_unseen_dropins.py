@@ -130,3 +130,35 @@ def test_nsgrid_limit_is_mdanalysis_own(box):
         except ValueError:
             refused = True
         assert _mda_arith.nsgrid_refuses(c, box32) is refused, c
+
+
+def test_no_box_cross_nsgrid_rounds_like_the_cutoff_type_given():
+    # without a box MDAnalysis shifts both sets by min - 0.1 * max_cutoff: float32 for a
+    # Python float, float64 for a numpy float64 (NEP 50); at a cutoff equal to a pair
+    # distance the two give different pairs, and the drop-in must follow the one given
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        pos = rng.uniform(-3, 12, (40, 3)).astype(np.float32)
+        _, d = mda_distances.self_capped_distance(pos, 3.0, method="bruteforce")
+        for cut in (d[0], float(d[0]), np.float32(d[0])):
+            want = mda_distances.capped_distance(pos[:30], pos, cut, method="nsgrid",
+                                                 return_distances=False)
+            got = gmda.capped_distance(pos[:30], pos, cut, method="nsgrid",
+                                       return_distances=False)
+            assert _pairs(got, False) == _pairs(want, False), (cut, type(cut))
+
+
+@pytest.mark.parametrize("box", [None, [5, 5, 5, 90, 90, 90], [10, 10, 10, 70, 80, 100]])
+def test_pkdtree_distances_and_min_cutoff_are_mdanalysis_own(box):
+    # MDAnalysis's pkdtree computes distances with calc_bonds (float32 inverse box:
+    # 1.0000000149 for a lattice spacing of 1 in a box of 5), then applies min_cutoff
+    pos = np.array([[x, y, z] for x in range(5) for y in range(5) for z in range(5)], float)
+    pos = pos + np.random.default_rng(1).integers(0, 2, pos.shape) * 0.25
+    for min_cutoff in (None, 1.0):
+        want, dw = mda_distances.self_capped_distance(pos, 1.2, min_cutoff=min_cutoff,
+                                                      box=box, method="pkdtree")
+        got, dg = gmda.self_capped_distance(pos, 1.2, min_cutoff=min_cutoff, box=box,
+                                            method="pkdtree")
+        w = dict(zip(map(tuple, np.sort(want, axis=1).tolist()), dw.tolist(), strict=True))
+        g = dict(zip(map(tuple, np.sort(got, axis=1).tolist()), dg.tolist(), strict=True))
+        assert g == w and len(w) > 0
