@@ -165,3 +165,50 @@ def test_worker_error_is_one_line(lammps_run):
     assert r.returncode == 2
     assert r.stderr.splitlines() == [r.stderr.strip()], r.stderr
     assert "cut_workers.dump: frame 3, line" in r.stderr and "truncated" in r.stderr
+
+
+def test_dump_with_time_and_units_items_read_by_workers(lammps_run):
+    """``dump_modify time yes units yes``: LAMMPS writes ITEM: UNITS (first frame) and
+    ITEM: TIME before ITEM: TIMESTEP.  Frames read from their byte offsets (``--workers``)
+    started at TIMESTEP and lost their time: NaN in the file where a serial run has it."""
+    import h5py
+
+    from granularsap.io.lammps_dump import dump_frame_index, iter_lammps_dump
+
+    pytest.importorskip("distributed")
+    loader = pytest.importorskip("lammps_bridge._loader")
+    d, _ = lammps_run
+    dump = d / "timed.dump"
+    lmp = loader.new_lammps()
+    lmp.commands_string(f"""
+        units lj
+        atom_style atomic
+        boundary p p s
+        region box prism 0 6 0 6 0 7 3.0 -3.0 2.9
+        create_box 1 box
+        create_atoms 1 random 150 4321 NULL overlap 0.7 maxtry 100
+        mass 1 1.0
+        pair_style zero 1.0
+        pair_coeff * *
+        velocity all create 2.0 111
+        fix 1 all nve
+        timestep 0.003
+        dump d all custom 10 {dump} id type x y z
+        dump_modify d time yes units yes
+        run 30
+    """)
+    lmp.close()
+    offsets, lines = dump_frame_index(dump)
+    text = dump.read_text().splitlines()
+    assert text[0] == "ITEM: UNITS" and [text[k - 1] for k in lines[1:]] == ["ITEM: TIME"] * 3
+    serial = [(f.step, f.time) for f in iter_lammps_dump(dump)]
+    alone = [next(iter_lammps_dump(dump, frames=slice(0, 1), start_at=(o, n, k)))
+             for k, (o, n) in enumerate(zip(offsets, lines, strict=True))]
+    assert [(f.step, f.time) for f in alone] == serial == [(0, 0.0), (10, 0.03), (20, 0.06),
+                                                           (30, 0.09)]
+    for name, extra in (("s.h5", []), ("w.h5", ["--workers", "1"])):
+        r = _contacts(dump, "-o", d / name, "--cutoff", "1.0", *extra, cwd=d)
+        assert r.returncode == 0, r.stderr
+    with h5py.File(d / "s.h5") as s, h5py.File(d / "w.h5") as w:
+        np.testing.assert_array_equal(w["frames/time"][:], s["frames/time"][:])
+        np.testing.assert_array_equal(w["contacts/pairs"][:], s["contacts/pairs"][:])

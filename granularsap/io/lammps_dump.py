@@ -140,7 +140,10 @@ def _to_float(col, path, frame, first_line, name):
 
 
 def dump_frame_index(path):
-    """Byte offset and 1-based line number of every ``ITEM: TIMESTEP`` line.
+    """Byte offset and 1-based line number of the first header line of every frame.
+
+    That is the ``ITEM: TIMESTEP`` line, or the ``ITEM: UNITS`` / ``ITEM: TIME``
+    lines LAMMPS writes before it.
 
     A fast byte scan (no parsing), so that frames can be read independently,
     e.g. by Dask workers: ``iter_lammps_dump(path, start_at=(offset, line, index))``.
@@ -174,6 +177,16 @@ def dump_frame_index(path):
             newlines += chunk.count(b"\n")
             base += len(chunk)
             tail = buf[-(len(key) - 1):]
+        # LAMMPS writes ITEM: UNITS and ITEM: TIME (dump_modify units/time yes) before
+        # ITEM: TIMESTEP: a frame starts at the first of them
+        for k, off in enumerate(offsets):
+            fh.seek(max(0, off - 1024))
+            before = fh.read(off - max(0, off - 1024)).split(b"\n")[:-1]
+            while len(before) >= 2 and (before[-2].startswith(b"ITEM: UNITS") or
+                                        before[-2].rstrip() == b"ITEM: TIME"):
+                offsets[k] -= len(before[-2]) + len(before[-1]) + 2
+                lines[k] -= 2
+                del before[-2:]
     return np.asarray(offsets, dtype=np.int64), np.asarray(lines, dtype=np.int64)
 
 
