@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 import time
 
+import numba
 import numpy as np
 
 from . import periodic
@@ -203,6 +204,11 @@ class _Search:
         self._w = np.empty((n, 3))
         self._ts = np.empty((n, 3))
         self._ws = np.empty((n, 3))
+        self._tz = np.empty(n)
+        self._xs = np.empty(n)
+        self._ys = np.empty(n)
+        self._zs = np.empty(n)
+        self._hist = np.empty((0, 0), np.int64)
         self._rs = np.empty(n)
         self._ls = np.empty(n, np.int64)
         self._m = np.zeros(n, np.int64)  # image jumps since the build, packed
@@ -245,7 +251,9 @@ class _Search:
         periodic_run = cell is not None
         if periodic_run and minimum:
             widths = periodic.perpendicular_widths(cell)
-            for c in np.flatnonzero(pbc_arr):
+            periodic_axes = np.flatnonzero(pbc_arr)
+            # the narrowest periodic axis (the one the message names as the smallest)
+            for c in periodic_axes[np.argsort(widths[periodic_axes], kind="stable")][:1]:
                 if reach_max > 0.5 * widths[c] * (1.0 + 1e-12):
                     raise ValueError(
                         f"{self._what} {reach_max:.17g} exceeds half the smallest "
@@ -376,10 +384,11 @@ class _Search:
             self._perm = np.empty(0, np.int64)
             times["sort"] = times["build"] = 0.0
             return 0
-        bad = self._kern.wrap(positions, hinv, cell, diag, pbc, self._t, self._k, self._w)
+        bad, extent = self._kern.wrap(positions, hinv, cell, diag, pbc, self._t, self._k,
+                                      self._w, int(min(_MAX_CHUNKS, max(1, n // _CHUNK))))
         self._raise_bad(bad)
         t, w = self._t, self._w
-        extent = float(np.abs(w).max()) + reach_max + self._margin
+        extent = extent + reach_max + self._margin
         guard = _GUARD * extent + np.finfo(np.float64).tiny
         reach = skin + self._margin + guard
         widths = periodic.perpendicular_widths(cell)
@@ -448,18 +457,34 @@ class _Search:
         nb0, nb1 = nb
         self._grid_shape = (nb0, nb1)
         ncol = nb0 * nb1
-        grid.columns_of(t, lo, inv_f, nb0, nb1, self._col)
+        self._kern.columns_of(t, lo, inv_f, nb0, nb1, self._col)
         fresh = self._perm is None or len(self._perm) != n
         prev = np.arange(n, dtype=np.int64) if fresh else self._perm
         start = np.empty(ncol + 1, np.int64)
         perm = self._perm_buf
-        grid.counting_sort(self._col, prev, ncol, start, perm)
-        self._kern.sort_columns(start, ncol, perm, np.ascontiguousarray(t[:, 2]), fresh)
+        segments = 1 if self._kern is grid.serial else min(numba.get_num_threads(),
+                                                             max(1, n // (4 * ncol + 1)))
+        hist = self._hist
+        if hist.shape != (segments, ncol):
+            hist = self._hist = np.empty((segments, ncol), np.int64)
+        self._kern.counting_sort_parallel(self._col, prev, ncol, start, perm, hist)
+        self._kern.sort_columns(start, ncol, perm, t, 2, fresh)
         self._perm_buf = prev if not fresh else np.empty(n, np.int64)
         self._perm = perm
         use_label = labels is not None
         lab = labels if use_label else self._ls
-        self._kern.gather(perm, t, w, rad, lab, self._ts, self._ws, self._rs, self._ls, use_label)
+        path, self._path_reason = self._choose_path(n, minimum)
+        self._path_now = path
+        direct = self._margin == 0.0 and path == "columns"
+        if direct:  # straight into the layout the column sweep reads
+            tz, xs, ys, zs = self._tz, self._xs, self._ys, self._zs
+            self._kern.gather_columns(perm, t, w, rad, lab, tz, xs, ys, zs, self._rs,
+                                      self._ls, use_label)
+        else:
+            self._kern.gather(perm, t, w, rad, lab, self._ts, self._ws, self._rs, self._ls,
+                              use_label)
+            tz = np.ascontiguousarray(self._ts[:, 2])
+            xs, ys, zs = (np.ascontiguousarray(self._ws[:, c]) for c in range(3))
         if "S" in self.quantities:
             np.take(self._k, perm, axis=0, out=self._ks)
         t1 = time.perf_counter()
@@ -482,15 +507,10 @@ class _Search:
         n_chunks = len(chunk_cols) - 1
         self._chunk_rows = start[chunk_cols]
         inv_w2 = 1.0 / widths[2]
-        tz = np.ascontiguousarray(self._ts[:, 2])
-        path, self._path_reason = self._choose_path(n, minimum)
-        self._path_now = path
         if path == "sweep":
             self._r_small = None
             return self._sweep_build(cell, pbc, minimum, reach, use_label, n, times)
-        ws = self._ws
-        geometry = (chunk_cols, start, nb0, nb1, pbc, tz, np.ascontiguousarray(ws[:, 0]),
-                    np.ascontiguousarray(ws[:, 1]), np.ascontiguousarray(ws[:, 2]),
+        geometry = (chunk_cols, start, nb0, nb1, pbc, tz, xs, ys, zs,
                     self._rs, self._ls, use_label, cell)
         big = (self._rs > r_small).view(np.uint8) if r_small is not None else _NO_BIG
         levels = (r_small is not None, big, r_small or 0.0, stencil_big)

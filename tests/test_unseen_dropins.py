@@ -162,3 +162,14 @@ def test_pkdtree_distances_and_min_cutoff_are_mdanalysis_own(box):
         w = dict(zip(map(tuple, np.sort(want, axis=1).tolist()), dw.tolist(), strict=True))
         g = dict(zip(map(tuple, np.sort(got, axis=1).tolist()), dg.tolist(), strict=True))
         assert g == w and len(w) > 0
+
+
+def test_too_large_cutoff_names_the_smallest_periodic_width():
+    # widths 8.05, 7.69, 7.0: the message must name vector 2 (7.0), not the first
+    # axis that is too narrow
+    from granularsap import Cell, neighbor_pairs
+
+    cell = Cell(np.array([[9.0, 0, 0], [4, 8, 0], [1, 2, 7]]))
+    with pytest.raises(ValueError, match=r"smallest perpendicular cell width 3\.5.*"
+                                         r"across cell vector 2"):
+        neighbor_pairs(np.zeros((2, 3)), 4.0, box=cell)
