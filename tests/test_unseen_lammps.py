@@ -212,3 +212,69 @@ def test_dump_with_time_and_units_items_read_by_workers(lammps_run):
     with h5py.File(d / "s.h5") as s, h5py.File(d / "w.h5") as w:
         np.testing.assert_array_equal(w["frames/time"][:], s["frames/time"][:])
         np.testing.assert_array_equal(w["contacts/pairs"][:], s["contacts/pairs"][:])
+
+
+@pytest.fixture(scope="module")
+def evaporating(tmp_path_factory):
+    """LAMMPS ``fix evaporate`` in a triclinic cell, dumped plain and gzip-compressed
+    (LAMMPS compresses a dump whose name ends in .gz)."""
+    loader = pytest.importorskip("lammps_bridge._loader")
+    lmp = loader.new_lammps()
+    d = tmp_path_factory.mktemp("evaporate")
+    lmp.commands_string(f"""
+        units lj
+        atom_style atomic
+        boundary p p p
+        region box prism 0 6 0 6 0 6 1.0 0.5 -0.5
+        create_box 1 box
+        create_atoms 1 random 200 2221 NULL overlap 0.8 maxtry 100
+        mass 1 1.0
+        pair_style lj/cut 2.5
+        pair_coeff * * 1.0 1.0
+        velocity all create 1.5 7
+        fix 1 all nve
+        fix e all evaporate 20 40 box 42
+        timestep 0.003
+        dump d1 all custom 20 {d / 'evap.dump'} id type x y z
+        dump d2 all custom 20 {d / 'evap.dump.gz'} id type x y z
+        run 100
+    """)
+    lmp.close()
+    return d
+
+
+def test_gzipped_dump_is_read_as_a_lammps_dump(evaporating):
+    """A gzip-compressed LAMMPS dump went to ASE, which numbers particles 0..n-1 by row:
+    the pairs were not LAMMPS ids, births and deaths of an evaporating system were wrong
+    (rows renumbered as atoms left) and radius/mol columns were lost; exit status 0."""
+    import h5py
+
+    from granularsap.io import iter_frames
+
+    d = evaporating
+    plain, packed = d / "evap.dump", d / "evap.dump.gz"
+    assert packed.read_bytes()[:2] == b"\x1f\x8b"
+    for a, b in zip(iter_frames(plain), iter_frames(packed), strict=True):
+        np.testing.assert_array_equal(a.ids, b.ids)
+        np.testing.assert_array_equal(a.positions, b.positions)
+        assert a.step == b.step and b.source.endswith(".gz")
+    runs = {"plain": (plain, []), "gz": (packed, []), "gz-workers": (packed, ["--workers", "1"])}
+    for name, (src, extra) in runs.items():
+        r = _contacts(src, "-o", d / f"{name}.h5", "--cutoff", "1.4", *extra, cwd=d)
+        assert r.returncode == 0, r.stderr
+    with h5py.File(d / "plain.h5") as p:
+        want = {k: p[k][()] for k in ("contacts/pairs", "events/born", "events/died",
+                                      "frames/n_particles")}
+        assert len(set(want["frames/n_particles"])) > 2  # the count does change
+    for name in ("gz", "gz-workers"):
+        with h5py.File(d / f"{name}.h5") as g:
+            for k, v in want.items():
+                np.testing.assert_array_equal(g[k][()], v, err_msg=f"{name}: {k}")
+            assert '"source_format": "lammps-dump"' in g.attrs["parameters"]
+    # a gzip file cut short: the good frames, then a one-line truncation error
+    data = packed.read_bytes()
+    for keep, where in ((len(data) - 4, "ends early"), (len(data) * 2 // 3, "truncated")):
+        cut = d / "cut.dump.gz"
+        cut.write_bytes(data[:keep])
+        r = _contacts(cut, "-o", d / "cut.h5", "--cutoff", "1.4", "--no-resume", cwd=d)
+        assert r.returncode == 2 and where in r.stderr and r.stderr.count("\n") == 1, r.stderr

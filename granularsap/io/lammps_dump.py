@@ -20,6 +20,7 @@ unless ``coordinates=`` says otherwise.
 
 from __future__ import annotations
 
+import gzip
 import io
 import os
 import re
@@ -28,7 +29,7 @@ import numpy as np
 
 from ._frame import Frame
 
-__all__ = ["DumpFormatError", "count_dump_frames", "iter_lammps_dump"]
+__all__ = ["DumpFormatError", "count_dump_frames", "iter_lammps_dump", "open_dump"]
 
 COORDINATE_SETS = {
     "x": ("x", "y", "z"),
@@ -51,16 +52,39 @@ class DumpFormatError(ValueError):
         return (type(self), (self.path, self.frame, self.line, self.message))
 
 
+def is_gzip(path) -> bool:
+    """True if ``path`` starts with the gzip magic bytes."""
+    with open(path, "rb") as fh:
+        return fh.read(2) == b"\x1f\x8b"
+
+
+def open_dump(path):
+    """Open a dump for binary reading; a gzip-compressed one (``dump custom/gz``,
+    ``*.dump.gz``, found by its magic bytes) is decompressed on the fly."""
+    return gzip.open(path, "rb") if is_gzip(path) else open(path, "rb")
+
+
+def _chunks(fh, size=1 << 24):
+    """The file's bytes in chunks; a cut gzip stream ends where its data does (the
+    reader, not a byte scan, reports it as truncated)."""
+    read = fh.read1 if isinstance(fh, gzip.GzipFile) else fh.read  # read1: keep data before a cut
+    while True:
+        try:
+            chunk = read(size)
+        except EOFError:
+            return
+        if not chunk:
+            return
+        yield chunk
+
+
 def count_dump_frames(path) -> int:
     """Number of ``ITEM: TIMESTEP`` headers in a dump (a fast byte scan)."""
     count = 0
     tail = b""
     key = b"ITEM: TIMESTEP"
-    with open(path, "rb") as fh:
-        while True:
-            chunk = fh.read(1 << 24)
-            if not chunk:
-                break
+    with open_dump(path) as fh:
+        for chunk in _chunks(fh):
             buf = tail + chunk
             count += buf.count(key)
             tail = buf[-(len(key) - 1):]
@@ -74,9 +98,17 @@ class _Lines:
     def __init__(self, fh):
         self.fh = fh
         self.lineno = 0
+        self.cut = False  # a gzip stream that ends before its end marker
+
+    def _readline(self):
+        try:
+            return self.fh.readline()
+        except EOFError:
+            self.cut = True
+            return ""
 
     def next(self):
-        line = self.fh.readline()
+        line = self._readline()
         if not line:
             return None
         self.lineno += 1
@@ -85,7 +117,7 @@ class _Lines:
     def take(self, n):
         lines = []
         for _ in range(n):
-            line = self.fh.readline()
+            line = self._readline()
             if not line:
                 break
             lines.append(line)
@@ -157,11 +189,8 @@ def dump_frame_index(path):
     base = 0
     newlines = 0
     tail = b""
-    with open(path, "rb") as fh:
-        while True:
-            chunk = fh.read(1 << 24)
-            if not chunk:
-                break
+    with open_dump(path) as fh:
+        for chunk in _chunks(fh):
             buf = tail + chunk
             start = base - len(tail)
             pos = buf.find(key)
@@ -224,7 +253,7 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
     if start < 0 or (stop is not None and stop < 0) or step <= 0:
         raise ValueError(f"frames must be a slice with non-negative start/stop and positive "
                          f"step for a LAMMPS dump, got {sel}")
-    with open(path, "rb") as raw:
+    with open_dump(path) as raw:
         first_index = 0
         if start_at is not None:
             raw.seek(int(start_at[0]))
@@ -348,6 +377,9 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
                      "(no end of line)")
             yield frame
             line = src.next()
+        if src.cut:
+            raise DumpFormatError(path, first_index + index + 1, src.lineno,
+                                  "truncated: the gzip-compressed file ends early")
 
 
 def _build_frame(path, index, names, rows, header, coordinates, first_row, frame_start):
@@ -416,10 +448,10 @@ _DUMP_START = re.compile(r"^\s*ITEM:")
 def looks_like_dump(path) -> bool:
     """True if the file's first non-blank line starts with ``ITEM:``."""
     try:
-        with open(path, encoding="utf-8", errors="replace") as fh:
+        with io.TextIOWrapper(open_dump(path), encoding="utf-8", errors="replace") as fh:
             for line in fh:
                 if line.strip():
                     return bool(_DUMP_START.match(line))
-    except (OSError, UnicodeDecodeError):
+    except (OSError, UnicodeDecodeError, EOFError):
         return False
     return False

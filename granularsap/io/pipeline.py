@@ -326,8 +326,10 @@ def _domain_results(frames, params, client, threshold, on_plan):
 
 def _dump_frame_atoms(path, offset):
     """``ITEM: NUMBER OF ATOMS`` of the dump frame starting at ``offset``, or None."""
+    from .lammps_dump import open_dump
+
     try:
-        with open(path, "rb") as fh:
+        with open_dump(path) as fh:
             fh.seek(offset)
             for _ in range(8):
                 line = fh.readline()
@@ -610,9 +612,11 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
         n_first = rows = None
         if workers is not None or scheduler is not None:
             # the first frame's size chooses between one frame per worker and
-            # spatial domains over all the workers
-            if backend == "lammps-dump":
-                from .lammps_dump import dump_frame_index
+            # spatial domains over all the workers; workers read a dump themselves,
+            # unless it is gzip-compressed (they could not seek in it cheaply)
+            from .lammps_dump import dump_frame_index, is_gzip
+
+            if backend == "lammps-dump" and not is_gzip(trajectory):
 
                 offsets, lines = dump_frame_index(trajectory)
                 rows = [(offsets[k], lines[k], k) for k in range(len(offsets))[todo]]
@@ -629,7 +633,7 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
             runner = _DaskRunner(workers=workers, scheduler=scheduler)
             results = _domain_results(_prefetch(frames_in, depth=1), params, runner.client,
                                       threshold, on_plan)
-        elif backend == "lammps-dump" and scheduler is None:
+        elif rows is not None and scheduler is None:
             # local workers see the file: each reads its own frames from their byte offsets
             if len(offsets) == 0:  # not a dump, or nothing selected: the reader says which
                 for _ in iter_frames(trajectory, format, frames=todo, topology=topology):
