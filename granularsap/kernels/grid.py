@@ -168,16 +168,31 @@ def _wrap_one(x, i, hinv, cell, diag, pbc, t, k, w, j):
 
 
 @pjit
-def wrap(x, hinv, cell, diag, pbc, t, k, w):
-    """Wrap every particle (input order); returns the first bad row or -1."""
+def wrap(x, hinv, cell, diag, pbc, t, k, w, n_chunks):
+    """Wrap every particle (input order); returns (first bad row or -1, largest
+    absolute wrapped coordinate)."""
     n = x.shape[0]
-    bad = np.full(n, False)
-    for i in numba.prange(n):
-        bad[i] = not _wrap_one(x, i, hinv, cell, diag, pbc, t, k, w, i)
-    for i in range(n):
-        if bad[i]:
-            return i
-    return -1
+    bad = np.full(n_chunks, -1, np.int64)
+    ext = np.zeros(n_chunks)
+    for ch in numba.prange(n_chunks):
+        lo = ch * n // n_chunks
+        hi = (ch + 1) * n // n_chunks
+        mx = 0.0
+        for i in range(lo, hi):
+            if not _wrap_one(x, i, hinv, cell, diag, pbc, t, k, w, i):
+                if bad[ch] < 0:
+                    bad[ch] = i
+            for c in range(3):
+                a = abs(w[i, c])
+                # a NaN is caught by the caller's finiteness check of the input
+                mx = a if a > mx else mx
+        ext[ch] = mx
+    extent = 0.0
+    for ch in range(n_chunks):
+        if bad[ch] >= 0:
+            return bad[ch], extent
+        extent = max(extent, ext[ch])
+    return -1, extent
 
 
 @pjit
@@ -233,11 +248,11 @@ def wrap_sorted(x, perm, hinv, cell, diag, pbc, t_build, n_chunks, t, k, w, m, d
 # ------------------------------------------------------------------ sorting
 
 
-@jit
+@pjit
 def columns_of(t, lo, inv_f, nb0, nb1, col):
     """Column index of every particle from its fractional coordinates."""
     n = t.shape[0]
-    for i in range(n):
+    for i in numba.prange(n):
         b0 = int(math.floor((t[i, 0] - lo[0]) * inv_f[0]))
         b1 = int(math.floor((t[i, 1] - lo[1]) * inv_f[1]))
         b0 = min(max(b0, 0), nb0 - 1)
@@ -264,9 +279,37 @@ def counting_sort(col, prev, ncol, start, perm):
 
 
 @pjit
-def sort_columns(start, ncol, perm, key, fresh):
-    """Sort every column of ``perm`` by ``key`` (insertion sort; merge sort if fresh
-    or if the insertion sort would move too much)."""
+def counting_sort_parallel(col, prev, ncol, start, perm, hist):
+    """:func:`counting_sort` over ``hist.shape[0]`` consecutive segments of
+    ``prev`` at once (one histogram row each, ``hist`` (segments, ncol)); the
+    segments keep their order, so the sort stays stable."""
+    n = prev.shape[0]
+    n_seg = hist.shape[0]
+    for g in numba.prange(n_seg):
+        for c in range(ncol):
+            hist[g, c] = 0
+        for r in range(g * n // n_seg, (g + 1) * n // n_seg):
+            hist[g, col[prev[r]]] += 1
+    o = 0
+    for c in range(ncol):
+        start[c] = o
+        for g in range(n_seg):
+            h = hist[g, c]
+            hist[g, c] = o
+            o += h
+    start[ncol] = o
+    for g in numba.prange(n_seg):
+        for r in range(g * n // n_seg, (g + 1) * n // n_seg):
+            i = prev[r]
+            c = col[i]
+            perm[hist[g, c]] = i
+            hist[g, c] += 1
+
+
+@pjit
+def sort_columns(start, ncol, perm, t, axis, fresh):
+    """Sort every column of ``perm`` by ``t[:, axis]`` (insertion sort; merge sort
+    if fresh or if the insertion sort would move too much)."""
     for c in numba.prange(ncol):
         lo = start[c]
         hi = start[c + 1]
@@ -280,9 +323,9 @@ def sort_columns(start, ncol, perm, key, fresh):
             done = True
             for p in range(lo + 1, hi):
                 v = perm[p]
-                kv = key[v]
+                kv = t[v, axis]
                 q = p - 1
-                while q >= lo and key[perm[q]] > kv:
+                while q >= lo and t[perm[q], axis] > kv:
                     perm[q + 1] = perm[q]
                     q -= 1
                     moves += 1
@@ -294,7 +337,7 @@ def sort_columns(start, ncol, perm, key, fresh):
             seg = perm[lo:hi].copy()
             vals = np.empty(m, np.float64)
             for p in range(m):
-                vals[p] = key[seg[p]]
+                vals[p] = t[seg[p], axis]
             order = np.argsort(vals, kind="mergesort")
             for p in range(m):
                 perm[lo + p] = seg[order[p]]
@@ -309,6 +352,22 @@ def gather(perm, t, w, rad, label, ts, ws, rs, ls, use_label):
         for c in range(3):
             ts[p, c] = t[i, c]
             ws[p, c] = w[i, c]
+        rs[p] = rad[i]
+        if use_label:
+            ls[p] = label[i]
+
+
+@pjit
+def gather_columns(perm, t, w, rad, label, tz, xs, ys, zs, rs, ls, use_label):
+    """:func:`gather` for a direct frame: the sweep coordinate and the wrapped
+    positions as separate contiguous arrays, the layout the column sweep reads."""
+    n = perm.shape[0]
+    for p in numba.prange(n):
+        i = perm[p]
+        tz[p] = t[i, 2]
+        xs[p] = w[i, 0]
+        ys[p] = w[i, 1]
+        zs[p] = w[i, 2]
         rs[p] = rad[i]
         if use_label:
             ls[p] = label[i]
@@ -872,5 +931,6 @@ def csr_from_pairs(n, pairs, dist, want_d, offsets, col, cd):
 
 #: the parallel kernels of this module, compiled serially (same names)
 serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in (
-    "wrap", "wrap_sorted", "sort_columns", "gather", "direct_count",
+    "wrap", "wrap_sorted", "columns_of", "counting_sort_parallel", "sort_columns", "gather",
+    "gather_columns", "direct_count",
     "direct_fill", "records_narrow", "narrow_count", "narrow_fill")})
