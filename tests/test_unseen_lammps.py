@@ -278,3 +278,13 @@ def test_gzipped_dump_is_read_as_a_lammps_dump(evaporating):
         cut.write_bytes(data[:keep])
         r = _contacts(cut, "-o", d / "cut.h5", "--cutoff", "1.4", "--no-resume", cwd=d)
         assert r.returncode == 2 and where in r.stderr and r.stderr.count("\n") == 1, r.stderr
+
+
+def test_missing_topology_names_the_option(lammps_run):
+    """``--topology`` naming no file: the error said only "[Errno 2] No such file or
+    directory: 'system.pdb'", from deep inside MDAnalysis."""
+    d, dump = lammps_run
+    r = _contacts(dump, "-o", d / "t.h5", "--cutoff", "1.0", "--topology", "system.pdb", cwd=d)
+    assert r.returncode == 2
+    assert r.stderr == "granularsap contacts: error: --topology system.pdb does not exist\n"
+    assert not list(d.glob("t.h5*"))

@@ -120,6 +120,8 @@ def run(args) -> int:
 
     if not os.path.exists(args.trajectory):
         raise CLIError(f"trajectory {args.trajectory} does not exist")
+    if args.topology is not None and not os.path.exists(args.topology):
+        raise CLIError(f"--topology {args.topology} does not exist")
     try:
         check_output(args.output, overwrite=args.force)
     except FileExistsError:
