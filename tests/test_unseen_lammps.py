@@ -288,3 +288,28 @@ def test_missing_topology_names_the_option(lammps_run):
     assert r.returncode == 2
     assert r.stderr == "granularsap contacts: error: --topology system.pdb does not exist\n"
     assert not list(d.glob("t.h5*"))
+
+
+def test_mdanalysis_reader_keeps_lammps_boundary_flags(lammps_run):
+    """``format="mdanalysis:LAMMPSDUMP"`` on a ``p s p`` dump: MDAnalysis keeps no boundary
+    flags, so every frame came out periodic in y too, and contacts across the open
+    y walls were added (2109 pairs instead of 1927 on a 600-atom frame)."""
+    pytest.importorskip("MDAnalysis")
+    import granularsap
+    from granularsap.io import iter_frames
+    from granularsap.io.pipeline import engine_cell
+
+    d, dump = lammps_run
+    own = list(iter_frames(dump))
+    mda = list(iter_frames(dump, "mdanalysis:LAMMPSDUMP"))
+    assert len(mda) == len(own)
+    for a, b in zip(own, mda, strict=True):
+        assert a.pbc.tolist() == b.pbc.tolist() == [True, False, True]
+        pa = a.ids[granularsap.neighbor_pairs(a.positions, 1.2, box=engine_cell(a),
+                                              return_distances=False)]
+        pb = b.ids[granularsap.neighbor_pairs(b.positions, 1.2, box=engine_cell(b),
+                                              return_distances=False)]
+        assert {tuple(sorted(p)) for p in pa.tolist()} == {tuple(sorted(p)) for p in pb.tolist()}
+        want = _brute(a.positions, a.cell, a.pbc, 1.2)
+        assert {tuple(sorted(p)) for p in a.ids[np.array(sorted(want))].tolist()} == \
+            {tuple(sorted(p)) for p in pa.tolist()}

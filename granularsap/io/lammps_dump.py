@@ -219,6 +219,31 @@ def dump_frame_index(path):
     return np.asarray(offsets, dtype=np.int64), np.asarray(lines, dtype=np.int64)
 
 
+def dump_frame_pbc(path):
+    """Periodicity ((3,) bool) of every frame of a dump, from its ``ITEM: BOX BOUNDS`` flags.
+
+    For readers that do not keep them (MDAnalysis's ``LAMMPSDUMP``).
+    """
+    offsets, _ = dump_frame_index(path)
+    out = []
+    with open_dump(path) as fh:
+        for off in offsets:
+            fh.seek(int(off))
+            pbc = np.ones(3, bool)  # old dumps without flags: written for periodic boxes
+            for _ in range(16):
+                line = fh.readline()
+                if not line or line.startswith(b"ITEM: ATOMS"):
+                    break
+                if line.startswith(b"ITEM: BOX BOUNDS"):
+                    flags = [w for w in line.split()[3:]
+                             if w not in (b"xy", b"xz", b"yz", b"abc", b"origin")]
+                    if len(flags) == 3:
+                        pbc = np.array([f == b"pp" for f in flags])
+                    break
+            out.append(pbc)
+    return out
+
+
 def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
     """Yield :class:`Frame` objects from a LAMMPS text dump.
 

@@ -228,14 +228,24 @@ def _iter_mdanalysis(path, sub, frames, topology, kwargs):
     molecule = None
     if hasattr(atoms, "molnums"):
         molecule = np.asarray(atoms.molnums, dtype=np.int64)
+    # MDAnalysis's LAMMPS dump reader drops the boundary flags (pp ss ff ...): take them
+    # from the file, or open walls would be periodic
+    pbcs = None
+    if str(getattr(u.trajectory, "format", "")) == "LAMMPSDUMP":
+        from .lammps_dump import dump_frame_pbc
+
+        pbcs = dump_frame_pbc(path)
     for ts in _mda_timesteps(u, frames, path):
         dims = ts.dimensions
         cell = None
         if dims is not None and np.all(np.asarray(dims[:3]) > 0):
             cell = box_to_cell(dims)
+        pbc = np.full(3, cell is not None)
+        if pbcs is not None and cell is not None:
+            pbc = pbcs[int(ts.frame)].copy()
         step = ts.data.get("step")
         frame = Frame(index=int(ts.frame), positions=np.array(atoms.positions, dtype=np.float64),
-                      ids=ids.copy(), cell=cell, pbc=np.full(3, cell is not None),
+                      ids=ids.copy(), cell=cell, pbc=pbc,
                       step=None if step is None else int(step), time=float(ts.time),
                       types=types, radius=radius, molecule=molecule, source=path)
         yield frame.sorted_by_id()
