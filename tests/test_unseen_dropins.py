@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 ase = pytest.importorskip("ase")
 pytest.importorskip("MDAnalysis")
@@ -173,3 +175,39 @@ def test_too_large_cutoff_names_the_smallest_periodic_width():
     with pytest.raises(ValueError, match=r"smallest perpendicular cell width 3\.5.*"
                                          r"across cell vector 2"):
         neighbor_pairs(np.zeros((2, 3)), 4.0, box=cell)
+
+
+_BOXES = [None, [8, 10, 8, 90, 90, 90], [6, 6, 6, 90, 90, 90], [10, 10, 10, 70, 80, 100],
+          [7.5, 7.5, 7.5, 60, 60, 60]]
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), k=st.integers(2, 40),
+       step=st.sampled_from([0.5, 0.25, 1 / 3]), box=st.sampled_from(_BOXES),
+       method=st.sampled_from([None, "bruteforce", "nsgrid"]),
+       numpy_cutoff=st.booleans())
+def test_grid_ties_at_cutoffs_sqrt_k_like_mdanalysis(seed, k, step, box, method,
+                                                     numpy_cutoff):
+    # every cutoff sqrt(k) * step is the distance of many grid pairs, and most are not
+    # float32 numbers
+    rng = np.random.default_rng(seed)
+    pos = rng.integers(-8, 30, (120, 3)) * step
+    conf = rng.integers(-8, 30, (40, 3)) * step
+    cut = np.sqrt(k) * step
+    cut = np.float64(cut) if numpy_cutoff else float(cut)
+    try:
+        want, dw = mda_distances.self_capped_distance(pos, cut, box=box, method=method)
+    except ValueError:  # nsgrid: cutoff too large for the box
+        want = None
+    if want is not None:
+        got, dg = gmda.self_capped_distance(pos, cut, box=box, method=method)
+        w = dict(zip(map(tuple, np.sort(want, axis=1).tolist()), dw.tolist(), strict=True))
+        g = dict(zip(map(tuple, np.sort(got, axis=1).tolist()), dg.tolist(), strict=True))
+        assert g == w
+    try:
+        want = mda_distances.capped_distance(pos, conf, cut, box=box, method=method,
+                                             return_distances=False)
+    except ValueError:
+        return
+    got = gmda.capped_distance(pos, conf, cut, box=box, method=method, return_distances=False)
+    assert _pairs(got, False) == _pairs(want, False)
