@@ -313,3 +313,23 @@ def test_mdanalysis_reader_keeps_lammps_boundary_flags(lammps_run):
         want = _brute(a.positions, a.cell, a.pbc, 1.2)
         assert {tuple(sorted(p)) for p in a.ids[np.array(sorted(want))].tolist()} == \
             {tuple(sorted(p)) for p in pa.tolist()}
+
+
+def test_half_written_contacts_file_is_refused_by_name(lammps_run):
+    """A contacts file cut short (a torn ``OUT.h5.tmp`` of a run killed while assembling,
+    a copy cut mid-way): ``read_contacts`` and ``granularsap info`` refused it with h5py's
+    bare "Unable to synchronously open file (...)", naming no file."""
+    from granularsap.io import read_contacts
+
+    d, dump = lammps_run
+    out = d / "whole.h5"
+    r = _contacts(dump, "-o", out, "--cutoff", "1.2", cwd=d)
+    assert r.returncode == 0, r.stderr
+    data = out.read_bytes()
+    torn = d / "torn.h5.tmp"
+    torn.write_bytes(data[:len(data) // 2])
+    with pytest.raises(ValueError, match=r"torn\.h5\.tmp is not a readable granularsap contacts "
+                                         r"file: a damaged HDF5 file .*rerun the same command"):
+        read_contacts(torn)
+    r = subprocess.run([*CLI, "info", str(torn)], capture_output=True, text=True, cwd=d)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "torn.h5.tmp" in r.stderr

@@ -497,7 +497,13 @@ class ContactsFile:
                 raise ValueError(f"{path} is not a granularsap contacts file: not an HDF5 file "
                                  f"({'empty' if size == 0 else f'{size} bytes'}); contacts "
                                  "files are written by `granularsap contacts`")
-            self.file = h5.File(path, "r")
+            try:
+                self.file = h5.File(path, "r")
+            except OSError as exc:  # an HDF5 signature, then a torn or cut file
+                torn = (" (the torn assembly file of an interrupted run: rerun the same "
+                        "command)" if path.endswith(".h5.tmp") else "")
+                raise ValueError(f"{path} is not a readable granularsap contacts file: a "
+                                 f"damaged HDF5 file ({exc}){torn}") from None
         attrs = self.file.attrs
         if attrs.get("format") != FORMAT_NAME:
             self.file.close()
