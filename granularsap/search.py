@@ -152,6 +152,14 @@ def _resolve_cell(box, pbc):
     cell = Cell.coerce(box, pbc=pbc, name="box")
     if cell is None or not cell.any_periodic:
         return None, np.zeros(3, bool)
+    open_axes = ~cell.pbc
+    if open_axes.any() and cell.matrix[open_axes].any():
+        # an open axis's vector only sets a frame of reference: replaced by one
+        # normal to the periodic vectors, so that a tilt towards it (a LAMMPS
+        # "p p s" box with xz, yz) cannot narrow the periodic widths
+        matrix = cell.matrix.copy()
+        matrix[open_axes] = 0.0
+        cell = Cell(matrix, cell.pbc)
     return (np.ascontiguousarray(cell.full_matrix, dtype=np.float64),
             np.array(cell.pbc, dtype=bool))
 

@@ -184,3 +184,24 @@ def test_lattice_translation_of_one_particle_changes_nothing(seed, k):
     thr = radii[b[:, 0]] + radii[b[:, 1]]
     assert {tuple(p) for p in b[db < thr - 1e-9].tolist()} <= {tuple(p) for p in a.tolist()}
     assert len(a) == len(b) or np.any(np.abs(db - thr) < 1e-9)
+
+
+@pytest.mark.parametrize("pbc", [(True, True, False), (True, False, True), (False, True, False)])
+def test_tilt_towards_an_open_axis_does_not_narrow_the_periodic_widths(pbc):
+    """A LAMMPS "p p s" box with xz, yz tilts: the open vector is a frame of
+    reference only, so a cutoff under half the periodic lattice's widths works
+    whatever the open vector's tilt, with the pairs of every image."""
+    rng = np.random.default_rng(5)
+    cell = np.array([[6.0, 0.0, 0.0], [1.5, 5.5, 0.0], [4.0, -3.5, 5.0]])
+    per = np.flatnonzero(pbc)
+    m = cell.copy()
+    m[~np.asarray(pbc)] = 0.0
+    widths = pc.perpendicular_widths(pc.Cell(m, pbc).full_matrix)[per]
+    cutoff = 0.49 * widths.min()
+    assert cutoff > 0.5 * pc.perpendicular_widths(cell)[per].min()  # refused before
+    x = rng.uniform(-2, 8, (150, 3))  # inside, on and outside the faces
+    pairs, d = neighbor_pairs(x, cutoff, box=pc.Cell(cell, pbc))
+    ref, dref = brute_image_pairs(x, cutoff, cell, pbc)
+    order = np.lexsort((pairs[:, 1], pairs[:, 0]))
+    np.testing.assert_array_equal(pairs[order], sort_pairs(ref))
+    np.testing.assert_allclose(d[order], dref[np.lexsort((ref[:, 1], ref[:, 0]))], rtol=1e-12)
