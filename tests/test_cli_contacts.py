@@ -276,3 +276,41 @@ class TestExample:
         with ContactsFile(out) as cf:
             z_last = 2 * cf.n_contacts[-1] / cf.n_particles[-1]
         assert f"step  40000  Z = {z_last:.3f}" in text
+
+
+class TestWithoutIds:
+    """A trajectory without particle ids: pairs are row numbers, and the file says so."""
+
+    def test_dump_without_id_column_warns_and_records_rows(self, tmp_path, capsys):
+        cell = lammps_cell(8.0, 8.0, 8.0)
+        frames = random_frames(60, 3, cell=cell, seed=3)
+        with_ids, without = tmp_path / "ids.dump", tmp_path / "rows.dump"
+        write_dump(with_ids, frames, columns=("id", "type", "x", "y", "z"))
+        write_dump(without, frames, columns=("type", "x", "y", "z"))
+        for dump, index in ((with_ids, "id"), (without, "row")):
+            out = tmp_path / f"{dump.stem}.h5"
+            assert main(["contacts", str(dump), "-o", str(out), "--cutoff", "1.5", "-q"]) == 0
+            err = capsys.readouterr().err
+            assert ("no particle ids" in err) == (index == "row")
+            with h5py.File(out) as f:
+                assert f.attrs["pair_index"] == index
+        with ContactsFile(tmp_path / "ids.h5") as a, ContactsFile(tmp_path / "rows.h5") as b:
+            for k in range(3):  # rows kept their order here, so the pairs agree
+                np.testing.assert_array_equal(a.pairs(k), b.pairs(k))
+
+    def test_resumed_run_keeps_the_row_index(self, tmp_path):
+        cell = lammps_cell(8.0, 8.0, 8.0)
+        dump = tmp_path / "rows.dump"
+        write_dump(dump, random_frames(40, 4, cell=cell, seed=4), columns=("type", "x", "y", "z"))
+        out = tmp_path / "rows.h5"
+        from granularsap.io import ContactParams, compute_contacts
+
+        params = ContactParams(cutoff=1.5)
+        written, told = [], []
+        with pytest.raises(KeyboardInterrupt):  # stopped after two committed frames
+            compute_contacts(dump, out, params, commit_seconds=0, on_warning=told.append,
+                             should_stop=lambda: written.append(1) or len(written) == 2)
+        assert len(told) == 1
+        compute_contacts(dump, out, params, on_warning=told.append)
+        with h5py.File(out) as f:
+            assert f.attrs["pair_index"] == "row" and f.attrs["n_frames"] == 4

@@ -76,6 +76,10 @@ class Frame:
         Every per-particle column the file has, by its name in the file.
     source : str
         Path of the file the frame came from.
+    ids_given : bool
+        False when the file has no particle ids and ``ids`` are row numbers
+        (a LAMMPS dump without an ``id`` column, an ASE file without an ``id``
+        array): then a particle is only known by its row.
     """
 
     index: int
@@ -91,6 +95,7 @@ class Frame:
     molecule: np.ndarray | None = None
     columns: dict = field(default_factory=dict)
     source: str = ""
+    ids_given: bool = True
 
     @property
     def n_particles(self) -> int:

@@ -140,6 +140,9 @@ def run(args) -> int:
         if not args.quiet:
             print(message, file=sys.stderr)
 
+    def on_warning(message):  # about the results: shown even with --quiet
+        print(f"granularsap contacts: warning: {message}", file=sys.stderr)
+
     import signal
 
     # SIGTERM/Ctrl-C: finish the frame in hand, commit, exit 130 (resumable); a second
@@ -178,7 +181,7 @@ def run(args) -> int:
                                        commit_seconds=args.commit_seconds,
                                        should_stop=lambda: bool(stop),
                                        domain_particles=args.domain_particles,
-                                       on_plan=on_plan)
+                                       on_plan=on_plan, on_warning=on_warning)
     except KeyError as exc:
         raise CLIError(exc.args[0] if exc.args else str(exc)) from None
     except KeyboardInterrupt:

@@ -10,7 +10,9 @@ HDF5, readable with h5py or any HDF5 tool, no granularsap needed)::
         complete             0 while being written, 1 once every frame is in
         n_frames             frames fully written (the only frames to trust)
         parameters           JSON: source, mode, cutoff/radius/skin, frames, ...
-        pair_index           "id": pairs hold particle ids, not row numbers
+        pair_index           "id": pairs hold particle ids; "row": the trajectory
+                             has no ids, pairs hold row numbers (LAMMPS: 1..n,
+                             ASE: 0..n-1), and births/deaths compare rows
         created, finished    UTC ISO-8601 times
         timing               JSON: seconds reading / computing / writing
     /frames/index            (F,)   int64    frame number in the trajectory
@@ -112,6 +114,7 @@ class FrameResult:
     clump_pairs: np.ndarray | None = None
     seconds: float = 0.0
     read_seconds: float = 0.0
+    ids_given: bool = True    # False: pairs hold row numbers (the file has no ids)
 
 
 def pair_difference(a, b):
@@ -266,6 +269,7 @@ class ContactsWriter:
         self.resumed = False
         self.discarded_reason = None
         self._prev = None
+        self.last_n_particles = None
         self._buffer = []
         self._buffered_pairs = 0
         self._last_commit = time.monotonic()
@@ -306,7 +310,9 @@ class ContactsWriter:
         if not same:
             self.discarded_reason = "partial run with different parameters"
             return
-        segments, last = _list_segments(self.tmp, self.h5py)
+        segments, last, rows = _list_segments(self.tmp, self.h5py)
+        if rows:
+            info["pair_index"] = "row"
         self.info = info
         self._segments = segments
         self.n_frames = sum(len(idx) for _, idx in segments)
@@ -329,6 +335,9 @@ class ContactsWriter:
             born = pair_difference(pairs, self._prev)
             died = pair_difference(self._prev, pairs)
         self._prev = pairs
+        self.last_n_particles = res.n_particles
+        if not res.ids_given:
+            self.info["pair_index"] = "row"
         self._buffer.append((res, pairs, born, died))
         self._buffered_pairs += len(pairs)
         self.n_frames += 1
@@ -347,6 +356,7 @@ class ContactsWriter:
         tmp = final + ".tmp"
         with self.h5py.File(tmp, "w") as f:
             f.attrs["format"] = FORMAT_NAME + ".segment"  # never mistaken for a contacts file
+            f.attrs["pair_index"] = self.info.get("pair_index", "id")
             f.attrs["complete"] = np.int8(0)
             f.attrs["n_frames"] = np.int64(len(self._buffer))
             _write_block(f, block)
@@ -400,7 +410,7 @@ def _write_header(f, info, n_frames, *, complete):
     f.attrs["complete"] = np.int8(1 if complete else 0)
     f.attrs["n_frames"] = np.int64(n_frames)
     f.attrs["parameters"] = json.dumps(info["parameters"], sort_keys=True)
-    f.attrs["pair_index"] = "id"
+    f.attrs["pair_index"] = info.get("pair_index", "id")
     f.attrs["created"] = info["created"]
     f.attrs["timing"] = json.dumps({})
 
@@ -435,10 +445,11 @@ def _list_segments(directory, h5py):
         with h5py.File(os.path.join(directory, n), "r") as f:
             idx = f["frames/index"][()]
             off = f["frames/contact_offset"][-2:]
+            rows = f.attrs.get("pair_index", "id") == "row"
             if len(idx):
                 last = f["contacts/pairs"][off[0]:off[1]]
-        segments.append((n, idx))
-    return segments, last
+        segments.append((n, idx, rows))
+    return [(n, idx) for n, idx, _ in segments], last, any(r for _, _, r in segments)
 
 
 def _assemble_in_memory(directory, h5py):
@@ -448,6 +459,10 @@ def _assemble_in_memory(directory, h5py):
     names = sorted(n for n in os.listdir(directory)
                    if n.startswith("seg-") and n.endswith(".h5"))
     f = h5py.File(f"partial-{id(names)}.h5", "w", driver="core", backing_store=False)
+    for n in names:
+        with h5py.File(os.path.join(directory, n), "r") as seg:
+            if seg.attrs.get("pair_index", "id") == "row":
+                info["pair_index"] = "row"
     _write_header(f, info, 0, complete=False)
     n_frames = _assemble(h5py, [os.path.join(directory, n) for n in names], f,
                          _block_from_frames([], distances=info["distances"],

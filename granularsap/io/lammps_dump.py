@@ -463,7 +463,7 @@ def _build_frame(path, index, names, rows, header, coordinates, first_row, frame
     frame = Frame(index=index, positions=np.ascontiguousarray(positions), ids=ids, cell=cell,
                   pbc=header["pbc"], origin=header["origin"], step=header["timestep"],
                   time=header["time"], types=types, radius=radius, molecule=mol,
-                  columns=columns, source=path)
+                  columns=columns, source=path, ids_given="id" in columns)
     return frame.sorted_by_id()
 
 

@@ -143,7 +143,7 @@ def lean_frame(frame: Frame, params: ContactParams) -> Frame:
                          "for clumps")
     return Frame(index=frame.index, positions=frame.positions, ids=frame.ids, cell=frame.cell,
                  pbc=frame.pbc, step=frame.step, time=frame.time, radius=radius,
-                 molecule=molecule, source=frame.source)
+                 molecule=molecule, source=frame.source, ids_given=frame.ids_given)
 
 
 def _sort_rows(pairs, *extra):
@@ -248,7 +248,14 @@ def _frame_result(frame, pairs, distances, clump_pairs, t0):
     return FrameResult(index=frame.index, step=frame.step, time=frame.time,
                        n_particles=frame.n_particles, cell=cell,
                        pbc=np.asarray(frame.pbc, dtype=bool), pairs=pairs, distances=distances,
-                       clump_pairs=clump_pairs, seconds=time.perf_counter() - t0)
+                       clump_pairs=clump_pairs, seconds=time.perf_counter() - t0,
+                       ids_given=frame.ids_given)
+
+
+def _warn(message):
+    import warnings
+
+    warnings.warn(message, UserWarning, stacklevel=3)
 
 
 def domain_threshold(domain_particles=None) -> int:
@@ -495,7 +502,7 @@ def _nothing_selected(trajectory, format, topology, frames):
 def compute_contacts(trajectory, output, params: ContactParams, *, format=None, topology=None,
                      frames=None, resume=True, overwrite=False, workers=None, scheduler=None,
                      progress=None, on_resume=None, commit_seconds=1.0, should_stop=None,
-                     domain_particles=None, on_plan=None):
+                     domain_particles=None, on_plan=None, on_warning=None):
     """Write the contacts of every selected frame of ``trajectory`` to ``output``.
 
     Parameters
@@ -536,6 +543,10 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
     on_plan : callable, optional
         Called once with a one-line description when frames are split into
         domains.
+    on_warning : callable, optional
+        Called with a one-line message about the results (a trajectory without
+        particle ids whose rows do not follow particles); default
+        :func:`warnings.warn`.
 
     Returns
     -------
@@ -645,9 +656,22 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
         else:
             runner = _DaskRunner(workers=workers, scheduler=scheduler)
             results = runner.map_ordered(frames_in, params)
+        rows_told = False
         for res in results:
             timing["compute"] += res.seconds
             timing["read"] += res.read_seconds
+            if not res.ids_given and not rows_told and writer.n_frames > 0:
+                why = None
+                if backend == "lammps-dump":
+                    why = "LAMMPS reorders a dump's rows between steps (atom_modify sort)"
+                elif writer.last_n_particles not in (None, res.n_particles):
+                    why = f"particles come and go (frame {res.index} has {res.n_particles})"
+                if why is not None:
+                    (on_warning or _warn)(
+                        f"{trajectory} has no particle ids: pairs hold row numbers and "
+                        f"births/deaths compare rows, which misleads where {why}; the file "
+                        f"records pair_index='row' (write an id column to follow particles)")
+                    rows_told = True
             t0 = time.perf_counter()
             writer.append(res)
             timing["write"] += time.perf_counter() - t0

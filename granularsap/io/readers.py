@@ -333,5 +333,5 @@ def _iter_ase(path, sub, frames, kwargs):
                       pbc=pbc, step=None if step_val is None else int(step_val),
                       time=None if time_val is None else float(time_val),
                       types=np.asarray(atoms.numbers), radius=radius, molecule=molecule,
-                      columns=columns, source=path)
+                      columns=columns, source=path, ids_given="id" in arrays)
         yield frame.sorted_by_id()
