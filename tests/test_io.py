@@ -285,6 +285,23 @@ class TestAseAndMDAnalysisFiles:
                                     pbc=(True, True, False), radii=radii)
         np.testing.assert_array_equal(sort_pairs(np.sort(got, axis=1)), sort_pairs(want))
 
+    def test_ase_periodic_axis_without_a_vector_is_an_error(self, tmp_path):
+        import ase
+        import ase.io
+
+        from granularsap.io import TrajectoryError
+
+        rng = np.random.default_rng(3)
+        slab = ase.Atoms("Ar8", positions=rng.uniform(0, 3, (8, 3)),
+                         cell=[[3, 0, 0], [0, 3, 0], [0, 0, 0]], pbc=[True, True, False])
+        nocell = ase.Atoms("Ar8", positions=rng.uniform(0, 3, (8, 3)), pbc=[True, False, True])
+        path = tmp_path / "bad.traj"
+        ase.io.write(path, [slab, nocell])
+        frames = iter_frames(path)
+        assert next(frames).pbc.tolist() == [True, True, False]  # the good frame first
+        with pytest.raises(TrajectoryError, match=r"frame 1: periodic along cell vectors 0, 2"):
+            next(frames)
+
     def test_dcd_with_topology(self, tmp_path):
         import MDAnalysis as mda
 

@@ -309,7 +309,14 @@ def _iter_ase(path, sub, frames, kwargs):
         pbc = np.asarray(atoms.pbc, dtype=bool)
         full = np.array(atoms.cell[:], dtype=np.float64)
         lengths = np.linalg.norm(full, axis=1)
-        if atoms.cell.rank == 3 or (pbc.any() and np.all(lengths[pbc] > 0)):
+        if pbc.any() and not np.all(lengths[pbc] > 0):
+            zero = np.flatnonzero(pbc & ~(lengths > 0))
+            which = (f"cell vector {zero[0]}, which is" if len(zero) == 1 else
+                     f"cell vectors {', '.join(map(str, zero))}, which are")
+            raise TrajectoryError(f"{path}: frame {start + k * step if start >= 0 else k}: "
+                                  f"periodic along {which} zero; give the cell, or pbc=False "
+                                  "where there is none")
+        if atoms.cell.rank == 3 or pbc.any():
             cell = full  # a slab's unused zero vector is fine: only periodic ones matter
         pbc = pbc if cell is not None else np.zeros(3, bool)
         radius = None
