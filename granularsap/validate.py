@@ -172,8 +172,10 @@ def _geometry(frame):
     if not pbc.all():
         from .cli import CLIError
 
-        raise CLIError(f"frame {frame.index}: mixed periodicity {pbc.tolist()} is not supported "
-                       "by granularsap.neighbor_pairs; use lammps_bridge directly")
+        raise CLIError(f"frame {frame.index}: mixed periodicity {pbc.tolist()}: validate compares "
+                       "fully periodic or open frames (MDAnalysis has no partly periodic box); "
+                       "compare granularsap.neighbor_pairs and lammps_bridge.neighbor_pairs, "
+                       "which both take pbc, directly")
     return pos, np.asarray(frame.cell, dtype=np.float64)
 
 

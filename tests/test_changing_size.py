@@ -227,4 +227,4 @@ class TestContacts:
         text = capsys.readouterr().out
         assert (f"particles:     min 0, mean {np.mean(counts):.4g}, max 300; first 0, last 0; "
                 f"count changes at {changes} of {len(counts) - 1} transitions, "
-                f"{counts.count(0)} frames empty") in text
+                f"{counts.count(0)} frame{'' if counts.count(0) == 1 else 's'} empty") in text

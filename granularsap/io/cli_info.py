@@ -66,7 +66,7 @@ def _particles(s):
         return f"{text}; the same in every frame"
     return (f"{text}; first {counts[0]}, last {counts[-1]}; count changes at "
             f"{s['particles_changed']} of {len(counts) - 1} transitions, "
-            f"{s['empty_frames']} frames empty")
+            f"{s['empty_frames']} frame{'' if s['empty_frames'] == 1 else 's'} empty")
 
 
 def plot(summary, png):
