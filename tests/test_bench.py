@@ -229,6 +229,21 @@ class TestAgreement:
         res = harness.run_peer(Raises(), SMALL["md-liquid"](), repeats=1)
         assert res.status == "error" and "RuntimeError: boom" in res.reason
 
+    @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="RLIMIT_AS on Linux")
+    def test_peer_outgrowing_the_machine_is_reported_not_killed(self):
+        class Greedy(Brute):
+            name = "greedy"
+
+            def run(self, frame):  # more than the machine has: the OOM killer's case
+                return np.empty(harness._available_bytes() // 8 * 2)
+
+        with harness.MemoryCeiling() as ceiling:
+            if not ceiling.budget:
+                pytest.skip("the address-space limit cannot be set here")
+        res = harness.run_peer(Greedy(), SMALL["md-liquid"](), repeats=1)
+        assert res.status == "error" and "ran out of memory" in res.reason
+        np.ones(2**28 // 8)  # the ceiling is lifted afterwards
+
 
 class TestCommand:
     def test_missing_peer_is_skipped_with_a_message(self, capsys):

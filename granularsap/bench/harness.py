@@ -143,6 +143,57 @@ MEMORY_METHOD = ("peak RSS above the RSS at the start of each timed run (Linux V
                  "reset via /proc/self/clear_refs)") if _probe_memory() else None
 
 
+def _available_bytes():
+    """MemAvailable of /proc/meminfo, or None."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+class MemoryCeiling:
+    """Context manager: a peer may map at most ``fraction`` of the memory available
+    at its start (``RLIMIT_AS`` above the process's current size), so that a peer
+    whose lists outgrow the machine fails with ``MemoryError``, reported as its
+    result, instead of the kernel's out-of-memory killer ending the whole bench.
+    A no-op where the limit cannot be set (not Linux)."""
+
+    def __init__(self, fraction=0.8):
+        self.fraction = fraction
+        self.budget = None
+
+    def __enter__(self):
+        self._old = None
+        try:
+            import resource
+
+            size = _read_status("VmSize")
+            avail = _available_bytes()
+            if size is None or avail is None:
+                return self
+            self.budget = int(self.fraction * avail)
+            self._old = resource.getrlimit(resource.RLIMIT_AS)
+            hard = self._old[1]
+            limit = size + self.budget
+            if hard != resource.RLIM_INFINITY:
+                limit = min(limit, hard)
+            resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
+        except (ImportError, OSError, ValueError):
+            self._old = None
+        return self
+
+    def __exit__(self, *exc):
+        if self._old is not None:
+            import resource
+
+            resource.setrlimit(resource.RLIMIT_AS, self._old)
+        return False
+
+
 class _PeakRSS:
     """Context manager measuring the peak RSS increase (bytes) inside it."""
 
@@ -255,7 +306,9 @@ def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0, tick=
         return res
     n_frames = len(workload.frames)
     notes = []
+    ceiling = MemoryCeiling()
     try:
+        ceiling.__enter__()
         peer.setup(workload, n_threads)
         t0 = time.perf_counter()
         first = peer.run(0)
@@ -338,6 +391,10 @@ def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0, tick=
         remark = peer.note()
         if remark:
             notes.append(remark)
+    except MemoryError:
+        budget = (f"{ceiling.budget / 2**30:.1f} GiB, 80 % of the memory available"
+                  if ceiling.budget else "the memory available")
+        res.status, res.reason = "error", f"ran out of memory (allowed {budget})"
     except Exception as exc:  # a failing peer is reported, not fatal
         res.status, res.reason = "error", f"{type(exc).__name__}: {exc}"
     finally:
@@ -345,6 +402,7 @@ def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0, tick=
             peer.close()
         except Exception as exc:  # a peer that cannot clean up is reported, not fatal
             notes.append(f"close failed: {type(exc).__name__}: {exc}")
+        ceiling.__exit__(None, None, None)
     res.note = "; ".join(notes) or None
     return res
 
