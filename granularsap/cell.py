@@ -73,23 +73,27 @@ def _matrix_from_dimensions(dim, name):
     cell[1, 1] = ly * sin_gamma
     cell[2, 0] = lz * cos_beta
     cell[2, 1] = lz * (cos_alpha - cos_beta * cos_gamma) / sin_gamma
-    disc = lz * lz - cell[2, 0] ** 2 - cell[2, 1] ** 2
+    # scaled by a power of two (the same bits) so that the squares cannot overflow
+    e = int(np.frexp(lz)[1])
+    c0, c1, lzs = np.ldexp(cell[2, 0], -e), np.ldexp(cell[2, 1], -e), np.ldexp(lz, -e)
+    disc = lzs * lzs - c0 ** 2 - c1 ** 2
     if not disc > 0:
         raise ValueError(f"{name} angles {dim[3:].tolist()} do not form a cell of positive "
                          "volume (each angle must be smaller than the sum of the other two)")
-    cell[2, 2] = np.sqrt(disc)
+    cell[2, 2] = np.ldexp(np.sqrt(disc), e)
     return cell
 
 
 def _complete(cell):
     """Replace zero rows by unit vectors orthogonal to the non-zero ones (ASE)."""
     cell = cell.copy()
-    missing = np.flatnonzero(np.linalg.norm(cell, axis=1) == 0)
+    missing = np.flatnonzero(~cell.any(axis=1))
     present = [c for c in range(3) if c not in missing]
     if len(missing) == 3:
         return np.eye(3)
     if len(missing) == 2:
-        v = cell[present[0]] / np.linalg.norm(cell[present[0]])
+        v = _pow2_scaled(cell[present[0]])
+        v = v / np.linalg.norm(v)
         trial = np.eye(3)[np.argmin(np.abs(v))]
         u1 = trial - v * (trial @ v)
         u1 /= np.linalg.norm(u1)
@@ -99,10 +103,17 @@ def _complete(cell):
             cell[missing[1]] = -u2
         return cell
     m = missing[0]
-    a, b = cell[(m + 1) % 3], cell[(m + 2) % 3]
+    a, b = _pow2_scaled(cell[(m + 1) % 3]), _pow2_scaled(cell[(m + 2) % 3])
     n = np.cross(a, b)
     cell[m] = n / np.linalg.norm(n)
     return cell
+
+
+def _pow2_scaled(v):
+    """``v`` times the power of two that brings its largest entry into [0.5, 1):
+    exact, so directions and norms computed from it keep their bits, and squares
+    can neither overflow nor underflow."""
+    return np.ldexp(v, -np.frexp(np.abs(v).max(axis=-1))[1][..., None])
 
 
 def _is_diagonal(m):
@@ -169,17 +180,25 @@ class Cell:
             raise ValueError(f"{name} must be a (3, 3) matrix of cell vectors, got shape "
                              f"{arr.shape}")
         flags = _as_pbc(pbc)
-        norms = np.linalg.norm(arr, axis=1)
+        # the shape test runs on every vector scaled by a power of two (exact) to a
+        # largest entry in [0.5, 1): whether a cell is degenerate depends on its
+        # angles only, not on its units or on how its edge lengths compare
+        unit = _pow2_scaled(arr)
+        norms = np.linalg.norm(unit, axis=1)
         for c in range(3):
-            if norms[c] == 0 and flags[c]:
+            if not arr[c].any() and flags[c]:
                 raise ValueError(f"{name} vector {c} is zero along a periodic axis; {name} "
                                  "must be a non-degenerate cell of positive volume (or make "
                                  "that axis open: pbc False)")
         full = _complete(arr) if (norms == 0).any() else arr.copy()
+        if (norms == 0).any():
+            unit = _complete(unit)
         # exact for an orthorhombic cell, where det's LU rounding would show
-        vol = abs(float(np.prod(np.diag(full)))) if _is_diagonal(full) else \
-            abs(float(np.linalg.det(full)))
-        if not vol > 1e-12 * max(norms.max(), 1.0) ** 3:
+        with np.errstate(over="ignore", under="ignore"):
+            vol = abs(float(np.prod(np.diag(full)))) if _is_diagonal(full) else \
+                abs(float(np.linalg.det(full)))
+        if not abs(float(np.linalg.det(unit))) > 1e-12 * float(
+                np.prod(np.linalg.norm(unit, axis=1))):
             raise ValueError(f"{name} must be a non-degenerate cell with positive volume, got "
                              f"{arr.tolist()}")
         if origin is None:
@@ -404,10 +423,14 @@ class Cell:
             if _is_diagonal(cell):
                 w = np.abs(np.diag(cell)).copy()
             else:
+                # on the cell scaled by a power of two (exact, the same bits) so that
+                # volumes and areas neither overflow nor underflow
+                e = int(np.frexp(np.abs(cell).max())[1])
+                cell = np.ldexp(cell, -e)
                 vol = abs(np.linalg.det(cell))
                 areas = np.array([np.linalg.norm(np.cross(cell[(c + 1) % 3], cell[(c + 2) % 3]))
                                   for c in range(3)])
-                w = vol / areas
+                w = np.ldexp(vol / areas, e)
             object.__setattr__(self, "_widths", _readonly(w))
         return self._widths
 

@@ -160,8 +160,14 @@ def _resolve_cell(box, pbc):
         matrix = cell.matrix.copy()
         matrix[open_axes] = 0.0
         cell = Cell(matrix, cell.pbc)
-    return (np.ascontiguousarray(cell.full_matrix, dtype=np.float64),
-            np.array(cell.pbc, dtype=bool))
+    full = np.array(cell.full_matrix, dtype=np.float64)
+    if open_axes.any():
+        # the unit vectors that complete open axes, scaled by a power of two (exact)
+        # to the size of the periodic ones: fractional coordinates of a cell 1e100
+        # wide must not mix with real coordinates along the open axes
+        size = np.abs(full[~open_axes]).max()
+        full[open_axes] = np.ldexp(full[open_axes], int(np.frexp(size)[1]))
+    return full, np.array(cell.pbc, dtype=bool)
 
 
 class _Search:
@@ -278,7 +284,8 @@ class _Search:
                   float(np.abs(cell).max()) if cell is not None else 0.0)
         scale = 1.0
         if mag > 2.0 ** 500 or 0.0 < mag < 2.0 ** -500:
-            scale = math.ldexp(1.0, -math.frexp(mag)[1])
+            # (at most 2**1000: a subnormal magnitude still lands well above 2**-500)
+            scale = math.ldexp(1.0, min(-math.frexp(mag)[1], 1000))
             positions = positions * scale
             rad = rad * scale
             skin = skin * scale

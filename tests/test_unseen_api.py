@@ -1,0 +1,52 @@
+"""The core API on inputs it had not been checked on: cells in any units, slabs
+much wider than one length unit, subnormal coordinates."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from granularsap import Cell, NeighborSearch, neighbor_pairs, sphere_contacts
+
+# 0 - 1 direct, 0 - 2 only through the image along the periodic axis
+_LINE = np.array([0.0, 1.0, 3.0])
+
+
+def _points(axis):
+    x = np.zeros((3, 3))
+    x[:, axis] = _LINE
+    return x
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e-150, 1e-100, 1e-5, 1e6, 1e100, 1e150, 1e300])
+@pytest.mark.parametrize("angles", [(90, 90, 90), (80, 70, 100)])
+@pytest.mark.parametrize("pbc", [(True, True, True), (False, False, True), (True, False, True)])
+def test_cell_in_any_units(scale, angles, pbc):
+    """A cell is degenerate or not by its shape only: 4e-5 or 4e6 wide cells, and
+    slabs periodic along one vector, were refused (or lost pairs) before."""
+    box = [4 * scale] * 3 + list(angles)
+    cell = Cell.from_dimensions(box, pbc=pbc)
+    np.testing.assert_allclose(cell.perpendicular_widths / scale,
+                               Cell.from_dimensions([4, 4, 4, *angles]).perpendicular_widths,
+                               rtol=1e-12)
+    axis = 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pairs, d = neighbor_pairs(_points(axis) @ np.eye(3) * scale, 1.1 * scale, box=box,
+                                  pbc=pbc)
+        want, wd = neighbor_pairs(_points(axis), 1.1, box=[4, 4, 4, *angles], pbc=pbc)
+    assert sorted(pairs.tolist()) == sorted(want.tolist())
+    np.testing.assert_allclose(np.sort(d) / scale, np.sort(wd), rtol=1e-12)
+
+
+def test_subnormal_coordinates_open():
+    """math.ldexp overflowed for magnitudes below 2**-1000 (OverflowError)."""
+    x = np.array([[0.0, 0, 0], [1e-323, 0, 0], [4e-323, 0, 0]])
+    pairs, d = neighbor_pairs(x, 1e-323)
+    assert pairs.tolist() == [[0, 1]] and d.tolist() == [1e-323]
+    assert sphere_contacts(x, 5e-324).tolist() == [[0, 1]]
+    search = NeighborSearch(1e-320, rebuild_margin=1e-321)
+    for _ in range(2):
+        assert len(search.update(x)[0]) == 3
