@@ -303,11 +303,12 @@ class _Search:
                                reach_max, minimum, threads, t_start, scale)
         if scale != 1.0:
             if self.layout == "pairs":
-                for q, r in zip(self.quantities, result, strict=True):
-                    if q in "dD":
-                        r /= scale
+                # once per buffer: a quantity asked for twice is the same view
+                for q in set(self.quantities) & set("dD"):
+                    r = result[self.quantities.index(q)]
+                    r /= scale
             elif len(result) == 3:
-                result[2] /= scale
+                np.divide(result[2], scale, out=result[2])
         if copy:
             result = tuple(np.array(r) for r in result)
         return result[0] if len(result) == 1 else result

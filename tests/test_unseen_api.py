@@ -50,3 +50,17 @@ def test_subnormal_coordinates_open():
     search = NeighborSearch(1e-320, rebuild_margin=1e-321)
     for _ in range(2):
         assert len(search.update(x)[0]) == 3
+
+
+@pytest.mark.parametrize("scale", [1e200, 1e-200])
+def test_scaled_coordinates_every_output_form(scale):
+    """Coordinates scaled by a power of two inside: a quantity asked for twice was
+    divided twice (inf / 0), and the CSR layout raised TypeError."""
+    x = np.array([[0.0, 0, 0], [1, 0, 0], [3, 0, 0]]) * scale
+    p, d1, v1, d2, v2 = NeighborSearch(1.5 * scale, quantities="PdDdD").update(x)
+    assert p.tolist() == [[0, 1]]
+    assert d1.tolist() == d2.tolist() == [scale]
+    assert v1.tolist() == v2.tolist() == [[scale, 0.0, 0.0]]
+    offsets, nbr, dist = NeighborSearch(1.5 * scale, layout="csr").update(x)
+    assert offsets.tolist() == [0, 1, 1, 1] and nbr.tolist() == [1]
+    assert dist.tolist() == [scale]
