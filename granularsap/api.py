@@ -118,8 +118,8 @@ def _check_boxes(lower, upper):
     if status == _checks.NONFINITE_UPPER:
         raise ValueError(f"upper must be finite, got NaN or inf in row {i}")
     if status == _checks.INVERTED:
-        raise ValueError(f"lower must not exceed upper, got lower={lower[i, a]!r} > "
-                         f"upper={upper[i, a]!r} at box {i}, axis {a}")
+        raise ValueError(f"lower must not exceed upper, got lower={float(lower[i, a])!r} > "
+                         f"upper={float(upper[i, a])!r} at box {i}, axis {a}")
     return lower, upper
 
 

@@ -64,3 +64,15 @@ def test_scaled_coordinates_every_output_form(scale):
     offsets, nbr, dist = NeighborSearch(1.5 * scale, layout="csr").update(x)
     assert offsets.tolist() == [0, 1, 1, 1] and nbr.tolist() == [1]
     assert dist.tolist() == [scale]
+
+
+def test_inverted_box_message_plain_floats():
+    """The message showed ``lower=np.float64(2.0)`` (NumPy 2 reprs)."""
+    from granularsap import box_overlaps
+
+    lower = np.zeros((3, 3))
+    upper = np.ones((3, 3))
+    lower[2, 1] = 2.0
+    with pytest.raises(ValueError, match=r"^lower must not exceed upper, got lower=2\.0 > "
+                                         r"upper=1\.0 at box 2, axis 1$"):
+        box_overlaps(lower, upper)
