@@ -7,6 +7,8 @@ import warnings
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from granularsap import Cell, NeighborSearch, neighbor_pairs, sphere_contacts
 
@@ -76,3 +78,26 @@ def test_inverted_box_message_plain_floats():
     with pytest.raises(ValueError, match=r"^lower must not exceed upper, got lower=2\.0 > "
                                          r"upper=1\.0 at box 2, axis 1$"):
         box_overlaps(lower, upper)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**31), st.sampled_from([None, "ortho", "mixed"]),
+       st.sampled_from([1.0, 2.0, 3.0]), st.sampled_from(["columns", "sweep", "auto"]),
+       st.sampled_from([0.0, 0.5]), st.sampled_from([1, 2]))
+def test_ties_on_a_lattice(seed, box, cutoff, path, margin, n_threads):
+    """Integer points in an integer cell, inside, on and outside its faces: pairs at
+    exactly the cutoff (1, 2, 3 = |(1, 2, 2)|) count, on every path, thread count and
+    Verlet frame, as the brute force over all images says."""
+    from .oracles import brute_image_pairs, sort_pairs
+
+    rng = np.random.default_rng(seed)
+    x = rng.integers(-3, 10, (30, 3)).astype(float)
+    pbc = (True, False, True) if box == "mixed" else (True, True, True)
+    cell = None if box is None else np.diag([6.0, 7.0, 8.0])
+    want, wd = brute_image_pairs(x, cutoff, cell, pbc=pbc)
+    search = NeighborSearch(cutoff, rebuild_margin=margin, path=path, n_threads=n_threads)
+    for frame in (x + 0.1 * margin, x):
+        pairs, d = search.update(frame, cell, pbc=pbc if cell is not None else None)
+    order = np.lexsort((pairs[:, 1], pairs[:, 0]))
+    assert np.array_equal(sort_pairs(pairs), want)
+    assert np.array_equal(d[order], wd)
