@@ -108,12 +108,14 @@ def _as_cell(cell, pbc):
         raise ValueError("cell must be finite, got NaN or inf")
     if not pbc_arr.any():
         return np.eye(3), np.eye(3), pbc_arr
-    norms = np.linalg.norm(m, axis=1)
-    if np.any((norms == 0) & ~pbc_arr) and np.all(norms[pbc_arr] > 0):
+    zero = ~m.any(axis=1)
+    if np.any(zero & ~pbc_arr) and not np.any(zero[pbc_arr]):
         m = np.array(Cell(m, pbc_arr).full_matrix)  # zero rows of open axes completed
-        norms = np.linalg.norm(m, axis=1)
-    det = abs(float(np.linalg.det(m)))
-    if not det > 1e-12 * max(float(norms.max()), 1.0) ** 3:
+    # on every vector scaled by a power of two (exact): degenerate or not by the
+    # angles only, whatever the units
+    unit = np.ldexp(m, -np.frexp(np.abs(m).max(axis=1))[1][:, None])
+    if not abs(float(np.linalg.det(unit))) > 1e-12 * float(
+            np.prod(np.linalg.norm(unit, axis=1))):
         raise ValueError(f"cell must be non-degenerate (positive volume), got {m.tolist()}; "
                          "complete the rows of open axes (Cell.full_matrix)")
     return m, np.linalg.inv(m), pbc_arr

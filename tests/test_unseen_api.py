@@ -25,9 +25,11 @@ def _points(axis):
 @pytest.mark.parametrize("scale", [1e-300, 1e-150, 1e-100, 1e-5, 1e6, 1e100, 1e150, 1e300])
 @pytest.mark.parametrize("angles", [(90, 90, 90), (80, 70, 100)])
 @pytest.mark.parametrize("pbc", [(True, True, True), (False, False, True), (True, False, True)])
-def test_cell_in_any_units(scale, angles, pbc):
+@pytest.mark.parametrize(("path", "margin"), [("columns", 0.0), ("columns", 0.1), ("sweep", 0.1)])
+def test_cell_in_any_units(scale, angles, pbc, path, margin):
     """A cell is degenerate or not by its shape only: 4e-5 or 4e6 wide cells, and
-    slabs periodic along one vector, were refused (or lost pairs) before."""
+    slabs periodic along one vector, were refused (or lost pairs) before, on the
+    column sweep and on the paper's sweep."""
     box = [4 * scale] * 3 + list(angles)
     cell = Cell.from_dimensions(box, pbc=pbc)
     np.testing.assert_allclose(cell.perpendicular_widths / scale,
@@ -36,8 +38,8 @@ def test_cell_in_any_units(scale, angles, pbc):
     axis = 2
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        pairs, d = neighbor_pairs(_points(axis) @ np.eye(3) * scale, 1.1 * scale, box=box,
-                                  pbc=pbc)
+        search = NeighborSearch(1.1 * scale, path=path, rebuild_margin=margin * scale)
+        pairs, d = search.update(_points(axis) * scale, box, pbc=pbc)
         want, wd = neighbor_pairs(_points(axis), 1.1, box=[4, 4, 4, *angles], pbc=pbc)
     assert sorted(pairs.tolist()) == sorted(want.tolist())
     np.testing.assert_allclose(np.sort(d) / scale, np.sort(wd), rtol=1e-12)
