@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import socket
 import subprocess
 import sys
 
@@ -161,7 +162,17 @@ def test_worker_error_is_one_line(lammps_run):
     text = dump.read_text()
     cut = d / "cut_workers.dump"
     cut.write_text(text[:text.rindex("ITEM: ATOMS") + 200])
-    r = _contacts(cut, "-o", d / "w.h5", "--cutoff", "1.2", "--workers", "1", cwd=d)
+    # a Dask cluster already running here holds the default dashboard port
+    held = socket.socket()
+    try:
+        held.bind(("127.0.0.1", 8787))
+        held.listen()
+    except OSError:
+        pass  # taken already: the case itself
+    try:
+        r = _contacts(cut, "-o", d / "w.h5", "--cutoff", "1.2", "--workers", "1", cwd=d)
+    finally:
+        held.close()
     assert r.returncode == 2
     assert r.stderr.splitlines() == [r.stderr.strip()], r.stderr
     assert "cut_workers.dump: frame 3, line" in r.stderr and "truncated" in r.stderr

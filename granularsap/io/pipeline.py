@@ -424,9 +424,10 @@ class _DaskRunner:
         else:
             # silence_logs: a task's error (a truncated dump) reaches the caller as the
             # run's one-line error; the workers' own "Compute Failed" log would print it
-            # again on the terminal with a traceback
+            # again on the terminal with a traceback.  dashboard_address ":0": a free
+            # port (None means 8787, and a warning on stderr when a cluster holds it)
             self.cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1,
-                                        processes=True, dashboard_address=None,
+                                        processes=True, dashboard_address=":0",
                                         silence_logs=logging.CRITICAL)
             self.client = Client(self.cluster)
         n = len(self.client.nthreads()) or int(workers or 1)
