@@ -841,16 +841,30 @@ def _edges(bins, reach):
 
 
 # --------------------------------------------------------------- Parquet output
+def _remove(path):
+    if os.path.isdir(path) and not os.path.islink(path):
+        shutil.rmtree(path)
+    elif os.path.lexists(path):
+        os.remove(path)
+
+
 def _write_pairs(search, path, *, overwrite=False):
-    path = os.fspath(path)
+    # no trailing separator: PATH.partial and PATH.replaced are siblings of PATH
+    path = os.path.normpath(os.fspath(path))
     if os.path.exists(path) and not overwrite:
         raise FileExistsError(f"{path} already exists; remove it or pass overwrite=True")
+    if os.path.isdir(path) and os.listdir(path) and \
+            not os.path.exists(os.path.join(path, _MARKER)):
+        raise FileExistsError(f"{path} is a directory that is not a granularsap pairs dataset "
+                              f"(no {_MARKER}); overwrite replaces only a pairs dataset, a "
+                              "file or an empty directory")
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(parent):
         raise FileNotFoundError(f"output directory {parent} does not exist")
     partial = path + ".partial"
-    if os.path.exists(partial):
-        shutil.rmtree(partial)
+    replaced = path + ".replaced"  # an old dataset moved aside, being deleted
+    _remove(partial)
+    _remove(replaced)
     df = search.pairs()
     nd = search.n_domains
     width = max(5, len(str(nd - 1)))
@@ -872,9 +886,11 @@ def _write_pairs(search, path, *, overwrite=False):
         json.dump(marker, fh, indent=1)
         fh.flush()
         os.fsync(fh.fileno())
-    if os.path.exists(path):
-        shutil.rmtree(path) if os.path.isdir(path) else os.remove(path)
+    if os.path.lexists(path):
+        # moved aside in one rename, so PATH never holds a half-deleted dataset
+        os.replace(path, replaced)
     os.replace(partial, path)
+    _remove(replaced)
     return marker
 
 
@@ -895,11 +911,26 @@ def read_pairs(path):
     if not os.path.exists(marker):
         raise ValueError(f"{path} is not a complete granularsap pairs dataset (no {_MARKER}); "
                          "an interrupted write leaves only PATH.partial")
-    with open(marker) as fh:
-        meta = json.load(fh)
+    try:
+        with open(marker) as fh:
+            meta = json.load(fh)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: the marker {_MARKER} is not valid JSON ({exc})") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path}: the marker {_MARKER} is not a JSON object")
     if meta.get("schema") != PAIRS_SCHEMA or not meta.get("complete"):
         raise ValueError(f"{path}: unknown or incomplete pairs dataset {meta.get('schema')!r}")
     files = sorted(f for f in os.listdir(path) if f.endswith(".parquet") and f[0] not in "._")
+    nd = meta.get("domains")
+    if isinstance(nd, int) and not isinstance(nd, bool):
+        width = max(5, len(str(nd - 1)))
+        want = [f"domain-{k:0{width}d}.parquet" for k in range(nd)]
+        missing = sorted(set(want) - set(files))
+        if missing:
+            raise ValueError(f"{path} is incomplete: its marker names {nd} domain files and "
+                             f"{len(missing)} are missing ({', '.join(missing[:3])}"
+                             f"{', ...' if len(missing) > 3 else ''})")
+        files = want
     _, pd = _dataframe()
     meta = pd.DataFrame({"i": np.empty(0, np.int64), "j": np.empty(0, np.int64),
                          "distance": np.empty(0, np.float64)})
@@ -991,7 +1022,11 @@ def write_pairs(path, positions, cutoff=None, *, radii=None, skin=0.0, cell=None
     ``_metadata`` and ``_common_metadata``); then the calling process writes
     the marker ``_granularsap.json`` (schema, pair count, domains) and renames
     ``PATH.partial`` to ``PATH``.  A dataset at ``PATH`` is therefore always
-    complete; an interrupted write leaves only ``PATH.partial``.  Read it with
+    complete; an interrupted write leaves only ``PATH.partial``.  With
+    ``overwrite=True`` an existing dataset (or a file, or an empty directory)
+    is first renamed to ``PATH.replaced`` and deleted after the new one is in
+    place; a non-empty directory that is not a pairs dataset is refused
+    (``FileExistsError``), never deleted.  Read it with
     ``pandas.read_parquet(PATH)``, ``pyarrow.dataset.dataset(PATH)``, polars,
     DuckDB or :func:`read_pairs` (files starting with ``_`` are metadata,
     ignored by those readers).  The workers and the calling process must see
