@@ -177,10 +177,13 @@ def _axis_range(u, lo, span, k, h, periodic):
     if k == 1:
         z = np.zeros(n, np.int64)
         return z, z, np.ones(n, np.int64)
-    scale = k / span
-    own = np.clip(np.floor((u - lo) * scale), 0, k - 1).astype(np.int64)
-    a = np.floor((u - h - lo) * scale)
-    b = np.floor((u + h - lo) * scale)
+    # divide by span before multiplying by k: k / span overflows to inf for a
+    # subnormal extent, and (u - lo) * inf is NaN for the particles at lo
+    # (a halo much wider than a tiny extent may overflow to +-inf: clipped below)
+    with np.errstate(over="ignore"):
+        own = np.clip(np.floor((u - lo) / span * k), 0, k - 1).astype(np.int64)
+        a = np.floor((u - h - lo) / span * k)
+        b = np.floor((u + h - lo) / span * k)
     if periodic:
         cnt = (b - a + 1).astype(np.int64)
         full = cnt >= k

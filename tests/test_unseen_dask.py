@@ -113,3 +113,21 @@ def test_read_refuses_damaged_marker_and_missing_domain_files(tmp_path):
         with pytest.raises(ValueError, match="marker"):
             gdask.read_pairs(bad)
     _assert_exact(gdask.read_pairs(out).compute(), x)
+
+
+@pytest.mark.parametrize("domains", [(1, 1, 2), (2, 1, 2)])
+def test_open_axis_with_a_subnormal_extent(domains):
+    """Particles on a plane but one, a subnormal distance off it: that open axis
+    may be split, and no pair is lost (k / extent used to overflow to inf, and
+    the particles on the plane got a NaN owner)."""
+    x = np.random.default_rng(0).uniform(0, 5, (200, 3))
+    x[:, 2] = 0.0
+    x[5, 2] = 5e-324
+    pairs, d = granularsap.neighbor_pairs(x, 0.7)
+    order = np.lexsort((pairs[:, 1], pairs[:, 0]))
+    ds = gdask.DomainSearch(x, cutoff=0.7, domains=domains)
+    gp, gd = _sorted(ds.pairs().compute(scheduler="threads"))
+    np.testing.assert_array_equal(gp, pairs[order])
+    assert np.array_equal(gd, d[order])
+    cn = ds.coordination_numbers().compute(scheduler="threads")
+    np.testing.assert_array_equal(cn, np.bincount(pairs.ravel(), minlength=len(x)))
