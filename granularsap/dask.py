@@ -158,7 +158,9 @@ def _chunk_extent(pos, rad, offset, frac_cell):
         rad = np.asarray(rad, dtype=np.float64)
         if rad.size:
             if not np.isfinite(rad).all():
-                raise ValueError("radii must be finite, got NaN or inf")
+                bad = int(np.flatnonzero(~np.isfinite(rad))[0])
+                raise ValueError(f"radii must be finite, got {float(rad[bad])!r} at index "
+                                 f"{offset + bad}")
             if rad.min() < 0:
                 bad = int(np.argmin(rad))
                 raise ValueError(f"radii must be non-negative, got {float(rad[bad])!r} at "
@@ -820,6 +822,9 @@ class DomainSearch:
         if box is None or not bool(np.all(box.pbc)):
             raise ValueError("radial_distribution needs a cell periodic on every axis (the "
                              "density is n / cell volume); use distance_histogram otherwise")
+        if self.n < 2:
+            raise ValueError(f"radial_distribution needs at least 2 particles (pairs), got "
+                             f"{self.n}")
         counts, edges = self.distance_histogram(bins)
         shell = 4.0 / 3.0 * np.pi * (edges[1:] ** 3 - edges[:-1] ** 3)
         ideal = self.n * (self.n - 1) / (2.0 * box.volume) * shell

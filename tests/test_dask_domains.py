@@ -167,6 +167,8 @@ class TestThreaded:
         np.testing.assert_allclose(g.compute(), want, rtol=1e-15)
         with pytest.raises(ValueError, match="periodic on every axis"):
             gdask.radial_distribution(x, 2.5, cell=None)
+        with pytest.raises(ValueError, match="at least 2 particles"):  # not a NaN g(r)
+            gdask.radial_distribution(x[:1], 2.5, cell=cell)
 
     def test_clump_ids_excluded_like_single_machine(self):
         x, radii, cell, _ = _frame("polydisperse")
@@ -221,6 +223,10 @@ class TestThreaded:
         with pytest.raises(ValueError, match="radii must be non-negative"):
             gdask.sphere_contacts(da.from_array(x, chunks=100),
                                   da.from_array(np.r_[np.ones(len(x) - 1), -1.0], chunks=100))
+        rad = np.ones(len(x))
+        rad[150] = np.nan
+        with pytest.raises(ValueError, match=r"radii must be finite, got nan at index 150"):
+            gdask.sphere_contacts(da.from_array(x, chunks=100), da.from_array(rad, chunks=100))
         with pytest.raises(ValueError, match="domains must be"):
             gdask.DomainSearch(x, cutoff=1.0, domains=(0, 1, 1))
         with pytest.raises(TypeError, match="client must be"):
