@@ -645,7 +645,8 @@ class SweepAndPrune:
             self._g_start = np.empty(ncol + 2, np.int64)
             self._g_chunks = np.empty(ncol + 2, np.int64)
         start = self._g_start[:ncol + 2]
-        column_kernels.counting_sort(self._g_col, self._g_prev, ncol + 1, start, self._g_perm)
+        column_kernels.serial.counting_sort(self._g_col, self._g_prev, ncol + 1, start,
+                                            self._g_perm, np.empty((1, ncol + 1), np.int64))
         self._g_binned = (self._frame, grid, fresh)
         return grid
 

@@ -81,6 +81,7 @@ import numpy as np
 
 from .._numba import ijit, jit, pjit, serial_twin
 from .bits import ctpop, cttz
+from .radixsort import scatter_offsets
 
 #: fractional coordinates at or beyond this magnitude cannot be wrapped
 #: meaningfully (the wrapped value keeps no significant bits)
@@ -260,29 +261,13 @@ def columns_of(t, lo, inv_f, nb0, nb1, col):
         col[i] = b0 * nb1 + b1
 
 
-@jit
-def counting_sort(col, prev, ncol, start, perm):
-    """Stable counting sort of ``prev``'s order by column; ``start`` (ncol + 1)."""
-    n = prev.shape[0]
-    for c in range(ncol + 1):
-        start[c] = 0
-    for i in range(n):
-        start[col[i] + 1] += 1
-    for c in range(ncol):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    for r in range(n):
-        i = prev[r]
-        c = col[i]
-        perm[fill[c]] = i
-        fill[c] += 1
-
-
 @pjit
-def counting_sort_parallel(col, prev, ncol, start, perm, hist):
-    """:func:`counting_sort` over ``hist.shape[0]`` consecutive segments of
-    ``prev`` at once (one histogram row each, ``hist`` (segments, ncol)); the
-    segments keep their order, so the sort stays stable."""
+def counting_sort(col, prev, ncol, start, perm, hist):
+    """Stable counting sort of ``prev``'s order by column into ``perm``; ``start``
+    (ncol + 1) gets each column's first slot.  ``hist`` (segments, ncol) is
+    scratch: ``prev`` is cut into that many consecutive segments, counted and
+    scattered at once, one histogram row each; the segments keep their order,
+    so the sort stays stable."""
     n = prev.shape[0]
     n_seg = hist.shape[0]
     for g in numba.prange(n_seg):
@@ -290,14 +275,7 @@ def counting_sort_parallel(col, prev, ncol, start, perm, hist):
             hist[g, c] = 0
         for r in range(g * n // n_seg, (g + 1) * n // n_seg):
             hist[g, col[prev[r]]] += 1
-    o = 0
-    for c in range(ncol):
-        start[c] = o
-        for g in range(n_seg):
-            h = hist[g, c]
-            hist[g, c] = o
-            o += h
-    start[ncol] = o
+    scatter_offsets(hist, start, n_seg, ncol)
     for g in numba.prange(n_seg):
         for r in range(g * n // n_seg, (g + 1) * n // n_seg):
             i = prev[r]
@@ -931,6 +909,6 @@ def csr_from_pairs(n, pairs, dist, want_d, offsets, col, cd):
 
 #: the parallel kernels of this module, compiled serially (same names)
 serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in (
-    "wrap", "wrap_sorted", "columns_of", "counting_sort_parallel", "sort_columns", "gather",
+    "wrap", "wrap_sorted", "columns_of", "counting_sort", "sort_columns", "gather",
     "gather_columns", "direct_count",
     "direct_fill", "records_narrow", "narrow_count", "narrow_fill")})

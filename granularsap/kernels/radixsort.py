@@ -34,7 +34,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .._numba import jit, pjit
+from .._numba import ijit, jit, pjit
 
 SIGN = np.uint64(0x8000000000000000)
 RADIX_BITS = 11
@@ -250,6 +250,22 @@ def sort_sequential(lower, upper, axis, keys, keys_tmp, idx, idx_tmp):
             idx[e] = idx_tmp[e]
 
 
+@ijit
+def scatter_offsets(hist, starts, nchunks, m):
+    """Turn the counts ``hist[t, q]`` of ``nchunks`` chunks in ``m`` buckets into
+    each chunk's first slot per bucket, buckets in order and chunks in order
+    within a bucket (a stable scatter); ``starts[q]`` gets each bucket's first
+    slot and ``starts[m]`` the total."""
+    total = 0
+    for q in range(m):
+        starts[q] = total
+        for t in range(nchunks):
+            c = hist[t, q]
+            hist[t, q] = total
+            total += c
+    starts[m] = total
+
+
 @pjit
 def sort_parallel(lower, upper, axis, bounds, keys, keys_tmp, idx, idx_tmp,
                   hist, starts, nchunks):
@@ -274,14 +290,7 @@ def sort_parallel(lower, upper, axis, bounds, keys, keys_tmp, idx, idx_tmp,
             idx_tmp[e] = q
             hist[t, q] += 1
     # Prefix sums: stable scatter offsets for (chunk, bucket).
-    total = 0
-    for q in range(m):
-        starts[q] = total
-        for t in range(nchunks):
-            c = hist[t, q]
-            hist[t, q] = total
-            total += c
-    starts[m] = total
+    scatter_offsets(hist, starts, nchunks, m)
     # Line 3, scatter in index order (stable).
     for t in numba.prange(nchunks):
         a = min(t * chunk, n2)
