@@ -483,7 +483,7 @@ class _Search:
         hist = self._hist
         if hist.shape != (segments, ncol):
             hist = self._hist = np.empty((segments, ncol), np.int64)
-        self._kern.counting_sort_parallel(self._col, prev, ncol, start, perm, hist)
+        self._kern.counting_sort(self._col, prev, ncol, start, perm, hist)
         self._kern.sort_columns(start, ncol, perm, t, 2, fresh)
         self._perm_buf = prev if not fresh else np.empty(n, np.int64)
         self._perm = perm
@@ -499,8 +499,10 @@ class _Search:
         else:
             self._kern.gather(perm, t, w, rad, lab, self._ts, self._ws, self._rs, self._ls,
                               use_label)
-            tz = np.ascontiguousarray(self._ts[:, 2])
-            xs, ys, zs = (np.ascontiguousarray(self._ws[:, c]) for c in range(3))
+            if path == "columns":  # a Verlet build sweeps columns too (the sweep path
+                # reads the rows)
+                tz = np.ascontiguousarray(self._ts[:, 2])
+                xs, ys, zs = (np.ascontiguousarray(self._ws[:, c]) for c in range(3))
         if "S" in self.quantities:
             np.take(self._k, perm, axis=0, out=self._ks)
         t1 = time.perf_counter()
