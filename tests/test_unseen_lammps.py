@@ -16,6 +16,8 @@ import sys
 import numpy as np
 import pytest
 
+from ._iohelpers import lammps_or_skip
+
 pytestmark = pytest.mark.lammps
 
 CLI = [sys.executable, "-m", "granularsap"]
@@ -36,11 +38,7 @@ def _brute(pos, cell, pbc, cutoff):
 @pytest.fixture(scope="module")
 def lammps_run(tmp_path_factory):
     """A small LJ liquid in a triclinic ``p s p`` cell: 4 frames, 300 atoms, unsorted rows."""
-    loader = pytest.importorskip("lammps_bridge._loader")
-    try:
-        lmp = loader.new_lammps()
-    except ImportError as exc:
-        pytest.skip(str(exc))
+    lmp = lammps_or_skip()
     d = tmp_path_factory.mktemp("unseen")
     dump = d / "psp.dump"
     lmp.commands_string(f"""
