@@ -40,6 +40,7 @@ from . import periodic
 from ._numba import num_threads
 from ._validate import as_coords, as_scalar, as_vector, check_n_threads
 from .cell import Cell
+from .identity import PairIdentity, as_ids
 from .kernels import grid
 
 __all__ = ["ContactSearch", "NeighborSearch"]
@@ -174,7 +175,7 @@ class _Search:
     """What NeighborSearch and ContactSearch share: state, rebuilds, outputs."""
 
     def __init__(self, *, rebuild_margin, quantities, layout, n_threads, periodic_images,
-                 include_cutoff, path):
+                 include_cutoff, path, identity=False):
         self.rebuild_margin = as_scalar(rebuild_margin, "rebuild_margin")
         self.quantities = _check_quantities(quantities)
         if layout not in _LAYOUTS:
@@ -185,6 +186,26 @@ class _Search:
             raise ValueError(f"periodic_images must be 'minimum' or 'all', got "
                              f"{periodic_images!r}")
         self.periodic_images = periodic_images
+        if not isinstance(identity, (bool, np.bool_)):
+            raise TypeError(f"identity must be True or False, got {identity!r}")
+        if identity and layout != "pairs":
+            raise ValueError(f"identity=True needs layout='pairs' (rows of pairs to follow), "
+                             f"got layout={layout!r}")
+        self.identity = bool(identity)
+        #: what the kernels compute: the quantities asked for, and the lattice
+        #: shifts that identity with every periodic image compares
+        self._computed = self.quantities
+        if identity and periodic_images == "all" and "S" not in self.quantities:
+            self._computed += "S"
+        self._tracker = (PairIdentity(shifts=periodic_images == "all") if identity
+                         else None)
+        self._id_call = None
+        #: two sets of output buffers that alternate between calls (the arrays a
+        #: call returns stay valid until the call after next); the last set
+        #: that holds a finished call's result
+        self._out_sets = [{"cap": 0}, {"cap": 0}]
+        self._out_last = 1
+        self._out_now = 0
         if not isinstance(include_cutoff, (bool, np.bool_)):
             raise TypeError(f"include_cutoff must be True or False, got {include_cutoff!r}")
         self.include_cutoff = bool(include_cutoff)
@@ -233,25 +254,51 @@ class _Search:
         self._vstart = np.empty(n, np.int64)
         self._vstop = np.empty(n, np.int64)
 
+    def _outputs_begin(self):
+        """Point the output buffers at the set the last finished call did not use:
+        every kernel of this call writes there."""
+        self._out_now = 1 - self._out_last
+        self._use_outputs(self._out_sets[self._out_now])
+
+    def _outputs_done(self, copy):
+        self._out_last = self._out_now
+        if copy and self._tracker is not None:
+            self._tracker.detach()
+
+    def _use_outputs(self, buf):
+        if "p" not in buf:
+            buf.update(p=np.empty((0, 2), np.int64), d=np.empty(0), v=np.empty((0, 3)),
+                       s=np.empty((0, 3), np.int64))
+        self._out_cap = buf["cap"]
+        self._out_p, self._out_d, self._out_v, self._out_s = buf["p"], buf["d"], buf["v"], buf["s"]
+
     def _alloc_output(self, total):
-        q = self.quantities
-        if total <= self._out_cap and hasattr(self, "_out_p"):
+        """Output buffers of this call (its set) for ``total`` pairs."""
+        q = self._computed
+        buf = self._out_sets[self._out_now]
+        if total <= buf["cap"] and "p" in buf:
+            self._use_outputs(buf)
             return
         cap = max(1024, total + total // 8)
-        self._out_cap = cap
-        self._out_p = np.empty((cap, 2), np.int64)
-        self._out_d = np.empty(cap if "d" in q else 0)
-        self._out_v = np.empty((cap if "D" in q else 0, 3))
-        self._out_s = np.empty((cap if "S" in q else 0, 3), np.int64)
+        buf.update(cap=cap, p=np.empty((cap, 2), np.int64), d=np.empty(cap if "d" in q else 0),
+                   v=np.empty((cap if "D" in q else 0, 3)),
+                   s=np.empty((cap if "S" in q else 0, 3), np.int64))
+        self._use_outputs(buf)
 
     @property
     def nbytes(self):
         """Bytes of working memory the search keeps between frames (all buffers,
         the output buffers included)."""
-        total = 0
-        for value in vars(self).values():
-            if isinstance(value, np.ndarray):
+        seen, total = set(), 0
+        values = [*vars(self).values()]
+        for buf in self._out_sets:
+            values += buf.values()
+        for value in values:
+            if isinstance(value, np.ndarray) and id(value) not in seen:
+                seen.add(id(value))
                 total += value.nbytes
+        if self._tracker is not None:
+            total += self._tracker.nbytes
         return total
 
     # --------------------------------------------------------------- frame
@@ -503,7 +550,7 @@ class _Search:
                 # reads the rows)
                 tz = np.ascontiguousarray(self._ts[:, 2])
                 xs, ys, zs = (np.ascontiguousarray(self._ws[:, c]) for c in range(3))
-        if "S" in self.quantities:
+        if "S" in self._computed:
             np.take(self._k, perm, axis=0, out=self._ks)
         t1 = time.perf_counter()
         times["sort"] = t1 - t0
@@ -606,7 +653,7 @@ class _Search:
         total = int(counts.sum())
         t1 = time.perf_counter()
         self._alloc_output(total)
-        q = self.quantities
+        q = self._computed
         (_, _, _, _, _, xs, ys, zs, rs, ls, use_label, cell) = geometry[1:]
         records = (self._words, self._rec_p, self._rec_q, self._rec_s)
         self._kern.direct_fill(wstart, wneed, offsets, *records, xs, ys, zs, rs, ls, use_label,
@@ -682,7 +729,7 @@ class _Search:
             self._alloc_output(0)
             return 0
         strict = not self.include_cutoff
-        q = self.quantities
+        q = self._computed
         wants = ("d" in q, "D" in q, "S" in q)
         uniform, x2 = _exact_bound(self._rs, skin, strict)
         tests = (cell, diag, strict, uniform, x2)
@@ -736,13 +783,24 @@ class _Search:
     def _results(self, total):
         if self.layout == "csr":
             n = self._n
-            offsets = np.empty(n + 1, np.int64)
-            col = np.empty(total, np.int64)
             want_d = "d" in self.quantities
-            cd = np.empty(total if want_d else 0)
+            buf = self._out_sets[self._out_now]
+            if buf.get("csr_n", -1) < n + 1:
+                buf["csr_o"] = np.empty(n + 1 + n // 8, np.int64)
+                buf["csr_n"] = len(buf["csr_o"])
+            if buf.get("csr_cap", -1) < total:
+                cap = total + total // 8
+                buf["csr_c"] = np.empty(cap, np.int64)
+                buf["csr_d"] = np.empty(cap)
+                buf["csr_cap"] = cap
+            offsets = buf["csr_o"][:n + 1]
+            col = buf["csr_c"][:total]
+            cd = buf["csr_d"][:total if want_d else 0]
             grid.csr_from_pairs(n, self._out_p[:total], self._out_d[:total] if want_d else cd,
                                 want_d, offsets, col, cd)
             return (offsets, col, cd) if want_d else (offsets, col)
+        if self._tracker is not None:
+            self._track(total)
         out = []
         for q in self.quantities:
             if q == "P":
@@ -758,6 +816,98 @@ class _Search:
             else:
                 out.append(self._out_s[:total])
         return tuple(out)
+
+    # ------------------------------------------------------------ identity
+    def _check_ids(self, ids, n):
+        if ids is None:
+            return None
+        if self._tracker is None:
+            raise ValueError("ids are used by contact identity: build the search with "
+                             "identity=True to pass ids")
+        return as_ids(ids, n)
+
+    def _track(self, total):
+        """Contact identity of this call's pairs (granularsap.identity)."""
+        t0 = time.perf_counter()
+        ids, positions, box, pbc, labels = self._id_call
+        cell = pbc_arr = None
+        shifts = None
+        if self._tracker.shifts:
+            shifts = self._out_s[:total]
+            cell, pbc_arr = _resolve_cell(box, pbc)
+        self._tracker.update(self._out_p[:total], len(positions), ids=ids, shifts=shifts,
+                             positions=positions, cell=cell, pbc=pbc_arr, labels=labels,
+                             borrow=True)
+        self._identity_seconds = time.perf_counter() - t0
+
+    def _run_tracked(self, positions, rad, skin, box, pbc, labels, copy, ids):
+        """One call through ``_frame``, its outputs in this call's buffer set, and
+        the identity of its pairs."""
+        self._id_call = (ids, positions, box, pbc, labels)
+        self._identity_seconds = None
+        self._outputs_begin()
+        result = self._frame(positions, rad, skin, box, pbc, labels, copy)
+        self._outputs_done(copy)
+        if self._identity_seconds is not None:
+            self.stats["seconds"]["identity"] = self._identity_seconds
+        return result
+
+    def _identity_state(self):
+        if self._tracker is None:
+            raise ValueError("contact identity needs the search built with identity=True")
+        return self._tracker
+
+    @property
+    def previous_rows(self):
+        """(k,) int64: for each pair of the last result, its row in the result of the
+        call before, or -1 for a new pair (``identity=True``; docs/identity.md)."""
+        return self._identity_state().previous_rows
+
+    @property
+    def ended_rows(self):
+        """(m,) int64: rows of the result of the call before the last whose pair did
+        not continue, ascending (``identity=True``)."""
+        return self._identity_state().ended_rows
+
+    @property
+    def clump_pairs(self):
+        """(c, 2) int64: the clump pairs in contact in the last call, by label,
+        ``label_a < label_b``, sorted (``identity=True`` and ``clump_ids``)."""
+        tracker = self._identity_state()
+        tracker._clump_tracker()
+        return tracker.clump_pairs
+
+    @property
+    def previous_clump_rows(self):
+        """(c,) int64: row of each clump pair in the call before's ``clump_pairs``,
+        or -1."""
+        return self._identity_state().previous_clump_rows
+
+    @property
+    def ended_clump_rows(self):
+        """(m,) int64: rows of the call before's ``clump_pairs`` that ended."""
+        return self._identity_state().ended_clump_rows
+
+    def carry(self, history, fill=0.0, out=None, *, clumps=False):
+        """A history array of the previous call's pairs, moved to the last call's rows.
+
+        Parameters
+        ----------
+        history : (k_prev, ...) array_like
+            One row per pair of the result of the call before the last.
+        fill : scalar or array_like, optional
+            Value for new pairs (default 0).
+        out : (k, ...) ndarray, optional
+            Where to write (same dtype, not overlapping ``history``).
+        clumps : bool, optional
+            ``history`` has one row per clump pair (``clump_pairs``) instead.
+
+        Returns
+        -------
+        (k, ...) ndarray
+            ``history[previous_rows]``, ``fill`` where ``previous_rows == -1``.
+        """
+        return self._identity_state().carry(history, fill, out, clumps=clumps)
 
 
 class NeighborSearch(_Search):
@@ -826,14 +976,15 @@ class NeighborSearch(_Search):
     _what = "cutoff"
 
     def __init__(self, cutoff, *, rebuild_margin=0.0, quantities="Pd", layout="pairs",
-                 periodic_images="minimum", include_cutoff=True, n_threads=None, path="auto"):
+                 periodic_images="minimum", include_cutoff=True, n_threads=None, path="auto",
+                 identity=False):
         self.cutoff = as_scalar(cutoff, "cutoff")
         super().__init__(rebuild_margin=rebuild_margin, quantities=quantities, layout=layout,
                          n_threads=n_threads, periodic_images=periodic_images,
-                         include_cutoff=include_cutoff, path=path)
+                         include_cutoff=include_cutoff, path=path, identity=identity)
         self._half = None
 
-    def update(self, positions, box=None, *, pbc=None, copy=False):
+    def update(self, positions, box=None, *, pbc=None, copy=False, ids=None):
         """Pairs of this frame.
 
         Parameters
@@ -847,6 +998,10 @@ class NeighborSearch(_Search):
             Periodic axes (default: all, when a box is given).
         copy : bool, optional
             Return copies instead of views of the search's buffers.
+        ids : (n,) array_like of int, optional
+            Unique id of every particle (``identity=True``): pairs are followed
+            across calls by ids, so that particles may be inserted, deleted or
+            reordered; by row without ids.
 
         Returns
         -------
@@ -854,9 +1009,10 @@ class NeighborSearch(_Search):
         """
         positions = as_coords(positions, "positions")
         n = len(positions)
+        ids = self._check_ids(ids, n)
         if self._half is None or len(self._half) != n:
             self._half = np.full(n, 0.5 * self.cutoff)
-        return self._frame(positions, self._half, 0.0, box, pbc, None, copy)
+        return self._run_tracked(positions, self._half, 0.0, box, pbc, None, copy, ids)
 
 
 class ContactSearch(_Search):
@@ -884,13 +1040,15 @@ class ContactSearch(_Search):
     _what = "interaction range 2 * max(radii) + skin"
 
     def __init__(self, *, skin=0.0, rebuild_margin=0.0, quantities="P", layout="pairs",
-                 periodic_images="minimum", include_cutoff=True, n_threads=None, path="auto"):
+                 periodic_images="minimum", include_cutoff=True, n_threads=None, path="auto",
+                 identity=False):
         self.skin = as_scalar(skin, "skin")
         super().__init__(rebuild_margin=rebuild_margin, quantities=quantities, layout=layout,
                          n_threads=n_threads, periodic_images=periodic_images,
-                         include_cutoff=include_cutoff, path=path)
+                         include_cutoff=include_cutoff, path=path, identity=identity)
 
-    def update(self, positions, radii, box=None, *, pbc=None, clump_ids=None, copy=False):
+    def update(self, positions, radii, box=None, *, pbc=None, clump_ids=None, copy=False,
+               ids=None):
         """Contacts of this frame.
 
         Parameters
@@ -898,11 +1056,13 @@ class ContactSearch(_Search):
         positions : (n, 3) array_like of float
         radii : (n,) array_like of float or float
             Non-negative radii (a scalar applies to every sphere).
-        box, pbc, copy
+        box, pbc, copy, ids
             As for :meth:`NeighborSearch.update`.
         clump_ids : (n,) array_like of int, optional
             Rigid-body label of every sphere: spheres with equal labels are never
-            paired.
+            paired.  With ``identity=True`` the clump pairs in contact get their
+            own identity, by label (``clump_pairs``, ``previous_clump_rows``,
+            ``ended_clump_rows``, ``carry(h, clumps=True)``).
 
         Returns
         -------
@@ -912,7 +1072,8 @@ class ContactSearch(_Search):
         n = len(positions)
         radii = as_radii(radii, n)
         labels = None if clump_ids is None else as_labels(clump_ids, n)
-        return self._frame(positions, radii, self.skin, box, pbc, labels, copy)
+        ids = self._check_ids(ids, n)
+        return self._run_tracked(positions, radii, self.skin, box, pbc, labels, copy, ids)
 
 
 def as_radii(radii, n, name="radii"):

@@ -1,0 +1,550 @@
+"""Contact identity across calls: which contact of the previous call each
+contact of this call continues, so that a time-stepping script can carry a
+history per contact (the tangential spring of a Mindlin or Cundall-Strack
+contact, a rolling angle) with one gather per step.
+
+Two trackers share one interface (``previous_rows``, ``ended_rows``,
+:meth:`~ContactIdentity.carry`):
+
+* :class:`PairIdentity` follows particle pairs, the particles known by ids
+  (so that insertions and deletions keep identity) or by row, and with every
+  periodic image by their lattice shift too.  :class:`~granularsap.NeighborSearch`
+  and :class:`~granularsap.ContactSearch` own one when built with
+  ``identity=True``.
+* :class:`ContactIdentity` follows contacts given by integer keys, any number
+  of int64 columns per contact (a sphere-wall contact: sphere id, wall,
+  element).
+
+The rules are in ``docs/identity.md``; the kernels and their cost in
+``granularsap/kernels/identity.py``.  Both trackers are O(contacts +
+particles) per call, without a Python loop over contacts, and give the same
+answer on any thread count.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from ._numba import num_threads
+from ._validate import check_n_threads
+from .kernels import identity as kern
+
+__all__ = ["ContactIdentity", "PairIdentity", "as_ids"]
+
+#: below this many rows the serial kernels run (a parallel region costs more)
+_PARALLEL_MIN = 50000
+_NO_SHIFTS = np.zeros((0, 3), np.int64)
+_NO_ROWS = np.zeros(0, np.int64)
+
+
+def as_ids(ids, n, name="ids"):
+    """Validated ``(n,)`` int64 particle ids (uniqueness is checked when they are
+    matched, by :meth:`PairIdentity.update`).
+
+    Examples
+    --------
+    >>> as_ids([3, 1, 2], 3).tolist()
+    [3, 1, 2]
+    """
+    arr = np.asarray(ids)
+    if arr.dtype.kind not in "iu":
+        if arr.size == 0 and arr.dtype.kind in "fb":
+            arr = arr.astype(np.int64)
+        else:
+            raise TypeError(f"{name} must be integers (one unique id per particle), got "
+                            f"dtype {arr.dtype}")
+    if arr.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), one per particle, got {arr.shape}")
+    if arr.dtype == np.uint64 and arr.size and arr.max() > np.iinfo(np.int64).max:
+        bad = int(np.argmax(arr))
+        raise ValueError(f"{name} must fit in int64, got {int(arr[bad])} at index {bad}")
+    return np.ascontiguousarray(arr, dtype=np.int64)
+
+
+def _bounds(k, chunks):
+    return np.linspace(0, k, chunks + 1).astype(np.int64)
+
+
+def _grow(buf, size, dtype, extra=()):
+    """``buf`` if it holds ``size`` rows, else a new buffer with an eighth more."""
+    if buf is not None and len(buf) >= size:
+        return buf
+    return np.empty((size + size // 8,) + extra, dtype)
+
+
+class _Rows:
+    """What both trackers share: double-buffered row maps and :meth:`carry`."""
+
+    def __init__(self, n_threads):
+        self.n_threads = check_n_threads(n_threads)
+        self._sets = [{}, {}]
+        self._set = 1
+        self._k_prev = 0
+        self._k = None
+        self.previous_rows = None
+        self.ended_rows = None
+        self._new = None
+
+    def _threads(self, rows):
+        """(kernels, chunks) for ``rows`` rows under the thread count in force."""
+        t = numba.get_num_threads()
+        if t == 1 or rows < _PARALLEL_MIN:
+            return kern.serial, 1
+        return kern, t
+
+    def _publish(self, k, k_prev, fill_rows, matched, chunks, kernels):
+        """Write this call's maps into the buffer set the previous call did not use:
+        ``fill_rows(prev_rows)`` writes ``previous_rows``; ``matched`` flags the
+        previous rows found."""
+        s = self._sets[1 - self._set]
+        s["prev"] = _grow(s.get("prev"), k, np.int64)
+        prev = s["prev"][:k]
+        fill_rows(prev)
+        bounds = _bounds(k_prev, chunks)
+        counts = np.zeros(chunks, np.int64)
+        kernels.unmatched_rows(matched, bounds, counts, _NO_ROWS, False)
+        m = int(counts.sum())
+        offsets = np.zeros(chunks, np.int64)
+        offsets[1:] = np.cumsum(counts)[:-1]
+        s["ended"] = _grow(s.get("ended"), m, np.int64)
+        ended = s["ended"][:m]
+        kernels.unmatched_rows(matched, bounds, offsets, ended, True)
+        self._set = 1 - self._set
+        self.previous_rows, self.ended_rows = prev, ended
+        self._k_prev, self._k = k_prev, k
+        self._new = None
+
+    def _matched(self, k_prev):
+        s = self._sets[1 - self._set]
+        s["matched"] = _grow(s.get("matched"), k_prev, np.uint8)
+        matched = s["matched"][:k_prev]
+        matched[:] = 0
+        return matched
+
+    def detach(self):
+        """Replace ``previous_rows`` and ``ended_rows`` by copies (they then stay
+        valid after any later call)."""
+        if self.previous_rows is not None:
+            self.previous_rows = self.previous_rows.copy()
+            self.ended_rows = self.ended_rows.copy()
+
+    @property
+    def nbytes(self):
+        """Bytes of the buffers the tracker keeps between calls."""
+        seen, total = set(), 0
+        for value in [*vars(self).values(), *self._sets[0].values(), *self._sets[1].values()]:
+            if isinstance(value, np.ndarray) and id(value) not in seen:
+                seen.add(id(value))
+                total += value.nbytes
+        return total
+
+    def carry(self, history, fill=0.0, out=None):
+        """A history array of the previous call's contacts, moved to this call's rows.
+
+        Parameters
+        ----------
+        history : (k_prev, ...) array_like
+            One row per contact of the previous call's result.
+        fill : scalar or array_like, optional
+            Value of the rows of new contacts (default 0).
+        out : (k, ...) ndarray, optional
+            Where to write (same dtype as ``history``, not overlapping it); a
+            new array by default.
+
+        Returns
+        -------
+        (k, ...) ndarray
+            ``history[previous_rows]``, ``fill`` where ``previous_rows == -1``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> track = ContactIdentity()
+        >>> _ = track.update([[1, 2], [2, 3]])
+        >>> _ = track.update([[2, 3], [4, 5]])
+        >>> track.carry(np.array([10.0, 20.0]), fill=-1.0).tolist()
+        [20.0, -1.0]
+        """
+        prev = self.previous_rows
+        if prev is None:
+            raise ValueError("carry needs a previous update: there is no result to carry "
+                             "from yet")
+        h = np.asarray(history)
+        if h.ndim == 0 or h.shape[0] != self._k_prev:
+            raise ValueError(f"history must have one row per contact of the previous call's "
+                             f"result ({self._k_prev} rows), got shape {h.shape}")
+        shape = (len(prev),) + h.shape[1:]
+        if out is None:
+            out = np.empty(shape, h.dtype)
+        else:
+            if not isinstance(out, np.ndarray):
+                raise TypeError(f"out must be a numpy array, got {type(out).__name__}")
+            if out.shape != shape or out.dtype != h.dtype:
+                raise ValueError(f"out must have shape {shape} and dtype {h.dtype}, got "
+                                 f"shape {out.shape} and dtype {out.dtype}")
+            if np.shares_memory(out, h):
+                raise ValueError("out must not overlap history (carry from one buffer into "
+                                 "another, e.g. two that alternate)")
+        if self._k_prev == 0 or not len(prev):
+            out[...] = fill
+            return out
+        np.take(h, prev, axis=0, out=out, mode="clip")
+        if self._new is None:
+            self._new = np.flatnonzero(prev < 0)
+        if len(self._new):
+            out[self._new] = fill
+        return out
+
+
+class ContactIdentity(_Rows):
+    """Rows of the same contact in consecutive calls, contacts given by integer keys.
+
+    Each call gives the contacts of one step as rows of integer keys (any
+    number of columns, the same on every call; for a sphere-wall contact the
+    sphere's id, the wall and the mesh element).  Two rows of consecutive calls
+    are the same contact when their keys are equal.
+
+    Parameters
+    ----------
+    n_threads : int, optional
+        numba threads for each call (restored afterwards); results do not
+        depend on it.
+
+    Attributes
+    ----------
+    previous_rows : (k,) int64 ndarray
+        After :meth:`update`: the row of each contact in the previous call, -1 for
+        a new one.
+    ended_rows : (m,) int64 ndarray
+        Rows of the previous call whose contact did not continue, ascending.
+
+    Notes
+    -----
+    The arrays of a call stay valid and unchanged until the call after next
+    (two sets of buffers alternate).  O(rows) per call: a hash table of the
+    previous keys, probed by every row.
+
+    Examples
+    --------
+    >>> track = ContactIdentity()
+    >>> track.update([[7, 0, 3], [8, 0, 3]]).tolist()
+    [-1, -1]
+    >>> track.update([[8, 0, 3], [9, 1, 0]]).tolist(), track.ended_rows.tolist()
+    ([1, -1], [0])
+    """
+
+    def __init__(self, *, n_threads=None):
+        super().__init__(n_threads)
+        self._prev_keys = None
+        self._slots = np.zeros(0, np.int64)
+        self._shift = 64
+
+    def update(self, keys):
+        """Match this call's contacts to the previous call's.
+
+        Parameters
+        ----------
+        keys : (k, w) array_like of int
+            One row of ``w`` integer keys per contact, rows unique.
+
+        Returns
+        -------
+        (k,) int64 ndarray
+            ``previous_rows``.
+        """
+        arr = np.asarray(keys)
+        if arr.ndim == 1 and arr.size == 0:
+            arr = arr.reshape(0, 0 if self._prev_keys is None else self._prev_keys.shape[1])
+        if arr.dtype.kind not in "iu":
+            if arr.size == 0:
+                arr = arr.astype(np.int64)
+            else:
+                raise TypeError(f"keys must be integers, got dtype {arr.dtype}")
+        if arr.ndim != 2 or arr.shape[1] == 0 and arr.shape[0]:
+            raise ValueError(f"keys must have shape (k, w), one row of w >= 1 keys per "
+                             f"contact, got {arr.shape}")
+        keys = np.array(arr, dtype=np.int64, order="C")  # kept for the next call
+        prev = self._prev_keys
+        if prev is not None and prev.shape[1] != keys.shape[1] and len(prev) and len(keys):
+            raise ValueError(f"keys must have the same columns on every call: "
+                             f"{prev.shape[1]} before, {keys.shape[1]} now")
+        k = len(keys)
+        k_prev = 0 if prev is None else len(prev)
+        with num_threads(self.n_threads):
+            kernels, chunks = self._threads(k)
+            size = 1 << max(4, int(2 * max(k, 1) - 1).bit_length())
+            shift = 64 - (size.bit_length() - 1)
+            slots = np.empty(size, np.int64)
+            first, second = kern.key_table(keys, shift, slots)
+            if first >= 0:
+                raise ValueError(f"keys must be unique rows: rows {first} and {second} are "
+                                 f"both {keys[second].tolist()}")
+            matched = self._matched(k_prev)
+
+            def fill_rows(out):
+                if k_prev == 0 or k == 0:
+                    out[:] = -1
+                    return
+                kernels.match_keys(keys, prev, self._shift, self._slots, _bounds(k, chunks),
+                                   out, matched)
+
+            self._publish(k, k_prev, fill_rows, matched, chunks, kernels)
+        self._prev_keys, self._slots, self._shift = keys, slots, shift
+        return self.previous_rows
+
+
+class PairIdentity(_Rows):
+    """Rows of the same particle pair in consecutive calls.
+
+    A pair of this call continues a pair of the previous call when its two
+    particles are the same (by ``ids``, or by row when no ids are given) and,
+    with ``shifts=True`` (every periodic image), its lattice shift is the same
+    once each particle's own jump by whole cell vectors between the two calls
+    is taken out.  With clump labels, the clump pairs touched (by label) get
+    their own identity: ``clump_pairs``, ``previous_clump_rows``,
+    ``ended_clump_rows``, ``carry(h, clumps=True)``.
+
+    Parameters
+    ----------
+    shifts : bool, optional
+        Whether pairs come with lattice shifts (``periodic_images="all"``).
+    n_threads : int, optional
+        numba threads for each call (restored afterwards); results do not
+        depend on it.
+
+    Notes
+    -----
+    The arrays of a call stay valid and unchanged until the call after next.
+    Fastest when both calls list the pairs of each particle together, as the
+    searches do (``granularsap/kernels/identity.py``); correct in any order.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> track = PairIdentity()
+    >>> track.update(np.array([[0, 1], [1, 2]]), 3, ids=[10, 11, 12]).tolist()
+    [-1, -1]
+    >>> # particle 10 deleted, 13 inserted, rows reordered
+    >>> track.update(np.array([[0, 1], [1, 2]]), 3, ids=[13, 12, 11]).tolist()
+    [-1, 1]
+    >>> track.ended_rows.tolist()
+    [0]
+    """
+
+    def __init__(self, *, shifts=False, n_threads=None):
+        super().__init__(n_threads)
+        self.shifts = bool(shifts)
+        self._prev = None  # (pairs, shifts, n, ids, positions)
+        self._dense = np.zeros(0, np.int64)
+        self._hkeys = np.zeros(0, np.int64)
+        self._hvals = np.zeros(0, np.int64)
+        self._rows = np.zeros(0, np.int64)
+        self._base = 0
+        self._mark = np.zeros((0, 0), np.int64)
+        self._owner = np.zeros((0, 0), np.int64)
+        self._gpos = self._ghub = None
+        self._clumps = None
+        self.clump_pairs = None
+
+    # ---------------------------------------------------------------- ids
+    def _map(self, n, ids, prev):
+        """(n,) int64: the previous row of every particle, or -1."""
+        n_prev = prev[2]
+        prev_ids = prev[3]
+        if (ids is None) != (prev_ids is None) and n and n_prev:
+            raise ValueError("ids must be given on every call or on none: the previous call "
+                             f"{'had' if prev_ids is not None else 'had no'} ids")
+        if ids is not None and prev_ids is None:
+            return self._match_ids(_NO_ROWS, ids)  # checks that they are unique
+        if ids is None or prev_ids is None:
+            if len(self._rows) < n:
+                self._rows = np.arange(n + n // 8, dtype=np.int64)
+            m = self._rows[:n].copy()
+            m[n_prev:] = -1
+            return m
+        if len(ids) == len(prev_ids) and np.array_equal(ids, prev_ids):
+            return np.arange(n, dtype=np.int64)
+        return self._match_ids(prev_ids, ids)
+
+    def _match_ids(self, prev_ids, ids):
+        n = len(ids)
+        m = np.empty(n, np.int64)
+        if n == 0:
+            return m
+        lo, hi = int(ids.min()), int(ids.max())
+        if len(prev_ids):
+            lo, hi = min(lo, int(prev_ids.min())), max(hi, int(prev_ids.max()))
+        if hi - lo < 4 * (n + len(prev_ids)) + 1024:
+            if len(self._dense) < hi - lo + 1:
+                self._dense = np.empty(hi - lo + 1 + (hi - lo) // 8, np.int64)
+            first, second = kern.map_ids_dense(prev_ids, ids, lo, self._dense[:hi - lo + 1], m)
+        else:
+            size = 1 << max(4, int(2 * n - 1).bit_length())
+            if len(self._hkeys) != size:
+                self._hkeys = np.empty(size, np.int64)
+                self._hvals = np.empty(size, np.int64)
+            shift = 64 - (size.bit_length() - 1)
+            first, second = kern.map_ids_hashed(prev_ids, ids, shift, self._hkeys, self._hvals,
+                                                m)
+        if first >= 0:
+            raise ValueError(f"ids must be unique, one per particle: id {int(ids[second])} is "
+                             f"at rows {int(first)} and {int(second)}")
+        return m
+
+    def _jumps(self, positions, cell, pbc, m, prev):
+        """(n, 3) int64: whole cell vectors each particle moved since the previous call."""
+        n = len(m)
+        jumps = np.zeros((n, 3), np.int64)
+        if cell is None or prev[4] is None or not n:
+            return jumps
+        has = m >= 0
+        moved = positions[has] - prev[4][m[has]]
+        frac = np.rint(moved @ np.linalg.inv(cell))
+        frac[:, ~np.asarray(pbc, bool)] = 0.0
+        jumps[has] = frac.astype(np.int64)
+        return jumps
+
+    # --------------------------------------------------------------- pairs
+    def _index(self, pairs, n_prev, kernels, chunks):
+        """Groups of the previous pairs and their CSR by hub (kernels module docstring)."""
+        k = len(pairs)
+        self._gpos = _grow(self._gpos, k + 1, np.int64)
+        self._ghub = _grow(self._ghub, k, np.int64)
+        bounds = _bounds(k, chunks)
+        counts = np.zeros(chunks, np.int64)
+        kernels.group_pairs(pairs, bounds, self._gpos, self._ghub, counts)
+        hub_start = np.empty(n_prev + 1, np.int64)
+        hub_groups = np.empty(int(counts.sum()), np.int64)
+        g = kern.hub_index(bounds, counts, self._gpos, self._ghub, k, n_prev, hub_start,
+                           hub_groups)
+        return self._gpos[:g + 1], hub_start, hub_groups
+
+    def update(self, pairs, n, *, ids=None, shifts=None, positions=None, cell=None,
+               pbc=None, labels=None, borrow=False):
+        """Match this call's pairs to the previous call's.
+
+        Parameters
+        ----------
+        pairs : (k, 2) int64 ndarray
+            Rows ``i <= j`` of the two particles of each pair, each pair once.
+        n : int
+            Number of particles of this call.
+        ids : (n,) array_like of int, optional
+            Unique id of every particle (given on every call or on none).
+        shifts : (k, 3) int64 ndarray, optional
+            Lattice shift of each pair (``shifts=True``): the vector from ``i``
+            to ``j`` is ``positions[j] - positions[i] + shifts @ cell``.
+        positions : (n, 3) ndarray, optional
+            Positions as given to the search (``shifts=True``): with the
+            previous call's, they tell each particle's jump by whole cell
+            vectors (less than half a cell of real motion between calls).
+        cell : (3, 3) ndarray, optional
+            Cell vectors (rows), None for open boundaries (``shifts=True``).
+        pbc : (3,) bools, optional
+            Periodic axes of ``cell``.
+        labels : (n,) int64 ndarray, optional
+            Clump label of every particle: clump pairs get their identity too.
+        borrow : bool, optional
+            Keep ``pairs`` and ``shifts`` without copying them (the caller keeps
+            them unchanged until the next call).
+
+        Returns
+        -------
+        (k,) int64 ndarray
+            ``previous_rows``.
+        """
+        pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
+        k = len(pairs)
+        if ids is not None:
+            ids = as_ids(ids, n)
+        if self.shifts:
+            if shifts is None:
+                raise ValueError("shifts must be given: this tracker matches lattice shifts "
+                                 "(shifts=True)")
+            shifts = np.ascontiguousarray(shifts, dtype=np.int64).reshape(-1, 3)
+        else:
+            shifts = _NO_SHIFTS
+        if not borrow:
+            pairs = pairs.copy()
+            shifts = shifts.copy()
+        prev = self._prev or (np.zeros((0, 2), np.int64), _NO_SHIFTS, 0, None, None)
+        with num_threads(self.n_threads):
+            m = self._map(n, ids, prev)
+            k_prev = len(prev[0])
+            kernels, chunks = self._threads(k)
+            matched = self._matched(k_prev)
+            if self.shifts:
+                jumps = self._jumps(positions, cell, pbc, m, prev)
+
+            def fill_rows(out):
+                if k_prev == 0 or k == 0:
+                    out[:] = -1
+                    return
+                gstart, hub_start, hub_groups = self._index(prev[0], prev[2], kernels,
+                                                            chunks)
+                n_prev = prev[2]
+                if self._mark.shape[0] != chunks or self._mark.shape[1] < n_prev:
+                    self._mark = np.empty((chunks, n_prev + n_prev // 8), np.int64)
+                    self._owner = np.full((chunks, n_prev + n_prev // 8), -1, np.int64)
+                kernels.match_pairs(pairs, m, self.shifts, shifts,
+                                    jumps if self.shifts else _NO_SHIFTS, prev[0], prev[1],
+                                    gstart, hub_start, hub_groups, _bounds(k, chunks),
+                                    self._mark, self._owner, self._base, out, matched)
+                self._base += k + 1
+
+            self._publish(k, k_prev, fill_rows, matched, chunks, kernels)
+            self._track_clumps(pairs, labels)
+        keep = None
+        if self.shifts and positions is not None:
+            keep = np.array(positions, dtype=np.float64)
+        self._prev = (pairs, shifts, int(n), None if ids is None else ids.copy(), keep)
+        return self.previous_rows
+
+    # -------------------------------------------------------------- clumps
+    def _track_clumps(self, pairs, labels):
+        if labels is None:
+            self._clumps = None
+            self.clump_pairs = None
+            return
+        if self._clumps is None:
+            self._clumps = ContactIdentity()
+        la = labels[pairs[:, 0]]
+        lb = labels[pairs[:, 1]]
+        lo = np.minimum(la, lb)
+        hi = np.maximum(la, lb)
+        order = np.lexsort((hi, lo))
+        lo, hi = lo[order], hi[order]
+        first = np.ones(len(lo), bool)
+        first[1:] = (lo[1:] != lo[:-1]) | (hi[1:] != hi[:-1])
+        self.clump_pairs = np.stack([lo[first], hi[first]], axis=1)
+        self._clumps.update(self.clump_pairs)
+
+    def _clump_tracker(self):
+        if self._clumps is None or self.clump_pairs is None:
+            raise ValueError("clump identity needs clump labels (ContactSearch.update(..., "
+                             "clump_ids=...)) on this call")
+        return self._clumps
+
+    @property
+    def previous_clump_rows(self):
+        """(c,) int64: row of each clump pair in the previous call's ``clump_pairs``,
+        or -1."""
+        return self._clump_tracker().previous_rows
+
+    @property
+    def ended_clump_rows(self):
+        """(m,) int64: rows of the previous call's ``clump_pairs`` that ended."""
+        return self._clump_tracker().ended_rows
+
+    def detach(self):
+        super().detach()
+        if self._clumps is not None:
+            self._clumps.detach()
+
+    def carry(self, history, fill=0.0, out=None, *, clumps=False):
+        """A history array moved to this call's rows (:meth:`ContactIdentity.carry`);
+        ``clumps=True`` for a history per clump pair."""
+        if clumps:
+            return self._clump_tracker().carry(history, fill, out)
+        return super().carry(history, fill, out)

@@ -1,0 +1,339 @@
+"""Contact identity between two calls: which row of the previous result each
+row of this result continues.
+
+Particle pairs (``match_pairs``)
+--------------------------------
+Both pair lists come from the same search, which writes the pairs of one
+particle (the "source" of its sweep) one after another.  The previous list is
+cut into *groups*: maximal runs of consecutive pairs that share one particle,
+the group's *hub* (``group_pairs``; a new group takes as hub the particle it
+shares with the next pair, else its first).  Groups are then sorted by hub
+(a counting sort over particles), so that every particle's groups are one
+range of ``hub_groups``.
+
+A pair of this call is first mapped to the previous call's rows of its two
+particles (``m``, from the ids).  This list is cut into groups on the fly by
+the same rule; when a group starts, the partners of its hub in the hub's
+previous groups are *stamped* into a per-thread table (``mark[partner]`` = the
+previous row, ``owner[partner]`` = a number unique to this stamping).  Each
+pair of the group then finds its previous row in O(1).  A pair whose previous
+row was in a group of its other particle (the search chose the other source,
+or the pair is new) scans that particle's previous groups.  When both lists
+come from the same sweep and the particles moved a little, nearly every pair
+is found by its stamp, and the cost is a few streaming passes over the two
+lists: O(pairs + particles) per call.  The answer does not depend on how the
+list is split between threads: every pair has at most one previous row.
+
+With every periodic image (``with_shift``), a pair is the same when its two
+particles and its lattice shift are: the current shift, corrected by the
+whole cell vectors each particle jumped between the two calls (``jumps``),
+equals the previous one (negated when the two particles come in the other
+order, either sign for a particle's own image).
+
+Keys (``KeyTable``)
+-------------------
+Contacts given by integer keys (any number of int64 columns) are matched
+with an open-addressing hash table of the previous call's keys (multiplicative
+hashing, linear probing), built once per call in O(rows) and probed by every
+row of this call.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numba
+import numpy as np
+
+from .._numba import ijit, jit, pjit, serial_twin
+
+_MIX = np.uint64(0x9E3779B97F4A7C15)
+
+
+# ------------------------------------------------------------------ ids
+
+@jit
+def map_ids_dense(prev_ids, ids, lo, table, m):
+    """``m[a]`` = row of ``ids[a]`` in ``prev_ids`` or -1, through a table indexed by
+    ``id - lo``.  Returns ``(first, second)`` rows of a repeated id of ``ids``, or
+    ``(-1, -1)``."""
+    table[:] = -1
+    for a in range(ids.shape[0]):
+        k = ids[a] - lo
+        if table[k] != -1:
+            return table[k], a
+        table[k] = a
+    for a in range(ids.shape[0]):
+        m[a] = -1
+    for r in range(prev_ids.shape[0]):
+        k = prev_ids[r] - lo
+        if 0 <= k < table.shape[0]:
+            a = table[k]
+            if a >= 0:
+                m[a] = r
+    return -1, -1
+
+
+@ijit
+def _slot(key, mask, shift):
+    return np.int64((np.uint64(key) * _MIX) >> shift) & mask
+
+
+@jit
+def map_ids_hashed(prev_ids, ids, shift, keys, vals, m):
+    """As ``map_ids_dense`` for ids spread too widely for a table: an open-addressing
+    hash table of ``len(keys)`` (a power of two, ``64 - shift`` bits) slots."""
+    mask = np.int64(keys.shape[0] - 1)
+    ushift = np.uint64(shift)
+    vals[:] = -1
+    for a in range(ids.shape[0]):
+        key = ids[a]
+        s = _slot(key, mask, ushift)
+        while vals[s] >= 0 and keys[s] != key:
+            s = (s + 1) & mask
+        if vals[s] >= 0:
+            return vals[s], a
+        keys[s] = key
+        vals[s] = a
+    for a in range(ids.shape[0]):
+        m[a] = -1
+    for r in range(prev_ids.shape[0]):
+        key = prev_ids[r]
+        s = _slot(key, mask, ushift)
+        while vals[s] >= 0:
+            if keys[s] == key:
+                m[vals[s]] = r
+                break
+            s = (s + 1) & mask
+    return -1, -1
+
+
+# --------------------------------------------------------- pair groups
+
+@ijit
+def _has(pairs, r, x):
+    return pairs[r, 0] == x or pairs[r, 1] == x
+
+
+@pjit
+def group_pairs(pairs, bounds, gpos, ghub, counts):
+    """Cut ``pairs`` into groups sharing one particle (module docstring): chunk
+    ``c`` of rows ``bounds[c]:bounds[c + 1]`` writes its groups' first rows and
+    hubs from ``gpos[bounds[c]]``, ``ghub[bounds[c]]`` and their number to
+    ``counts[c]``."""
+    for c in numba.prange(bounds.shape[0] - 1):
+        lo = bounds[c]
+        end = bounds[c + 1]
+        g = lo
+        h = np.int64(-1)
+        for r in range(lo, end):
+            x = pairs[r, 0]
+            y = pairs[r, 1]
+            if x == h or y == h:
+                continue
+            h = x
+            if r + 1 < end and not _has(pairs, r + 1, x) and _has(pairs, r + 1, y):
+                h = y
+            gpos[g] = r
+            ghub[g] = h
+            g += 1
+        counts[c] = g - lo
+
+
+@jit
+def hub_index(bounds, counts, gpos, ghub, k, n_rows, hub_start, hub_groups):
+    """Compact the chunks' groups into ``gpos`` (their first rows, then ``k``) and sort
+    them by hub: the groups of particle ``h`` are
+    ``hub_groups[hub_start[h]:hub_start[h + 1]]``.  Returns the group count."""
+    g = 0
+    for c in range(counts.shape[0]):
+        lo = bounds[c]
+        for t in range(counts[c]):
+            gpos[g] = gpos[lo + t]
+            ghub[g] = ghub[lo + t]
+            g += 1
+    gpos[g] = k
+    hub_start[:] = 0
+    for t in range(g):
+        hub_start[ghub[t] + 1] += 1
+    for h in range(n_rows):
+        hub_start[h + 1] += hub_start[h]
+    for t in range(g):
+        h = ghub[t]
+        hub_groups[hub_start[h]] = t
+        hub_start[h] += 1
+    for h in range(n_rows, 0, -1):
+        hub_start[h] = hub_start[h - 1]
+    hub_start[0] = 0
+    return g
+
+
+# ------------------------------------------------------------- matching
+
+@ijit
+def _same(prev_pairs, prev_shifts, q, pa, pb, with_shift, s0, s1, s2):
+    """Whether previous row ``q`` is the pair ``(pa, pb)`` with shift ``s`` (from
+    ``pa`` to ``pb``)."""
+    p0 = prev_pairs[q, 0]
+    p1 = prev_pairs[q, 1]
+    if not with_shift:
+        return (p0 == pa and p1 == pb) or (p0 == pb and p1 == pa)
+    t0 = prev_shifts[q, 0]
+    t1 = prev_shifts[q, 1]
+    t2 = prev_shifts[q, 2]
+    if p0 == pa and p1 == pb and t0 == s0 and t1 == s1 and t2 == s2:
+        return True
+    return p0 == pb and p1 == pa and t0 == -s0 and t1 == -s1 and t2 == -s2
+
+
+@ijit
+def _scan(hub, pa, pb, prev_pairs, prev_shifts, gstart, hub_start, hub_groups, with_shift,
+          s0, s1, s2):
+    """The previous row of ``(pa, pb, s)`` among the groups of ``hub``, or -1."""
+    for t in range(hub_start[hub], hub_start[hub + 1]):
+        g = hub_groups[t]
+        for q in range(gstart[g], gstart[g + 1]):
+            if _same(prev_pairs, prev_shifts, q, pa, pb, with_shift, s0, s1, s2):
+                return q
+    return np.int64(-1)
+
+
+@pjit
+def match_pairs(pairs, m, with_shift, shifts, jumps, prev_pairs, prev_shifts, gstart,
+                hub_start, hub_groups, bounds, mark, owner, base, prev_rows, matched):
+    """``prev_rows[r]``: the previous row of pair ``r`` or -1, and ``matched[q] = 1``
+    for every previous row found (module docstring).  Chunk ``c`` of rows
+    ``bounds[c]:bounds[c + 1]`` stamps into ``mark[c]``, ``owner[c]``; stamps are
+    numbered from ``base`` (larger than every number of earlier calls)."""
+    for c in numba.prange(bounds.shape[0] - 1):
+        lo = bounds[c]
+        end = bounds[c + 1]
+        mk = mark[c]
+        ow = owner[c]
+        h = np.int64(-1)
+        ev = np.int64(-1)
+        for r in range(lo, end):
+            a = pairs[r, 0]
+            b = pairs[r, 1]
+            pa = m[a]
+            pb = m[b]
+            prev_rows[r] = -1
+            if pa < 0 or pb < 0:
+                continue
+            s0 = s1 = s2 = np.int64(0)
+            if with_shift:
+                s0 = shifts[r, 0] + jumps[b, 0] - jumps[a, 0]
+                s1 = shifts[r, 1] + jumps[b, 1] - jumps[a, 1]
+                s2 = shifts[r, 2] + jumps[b, 2] - jumps[a, 2]
+            if pa == h:
+                t = pb
+            elif pb == h:
+                t = pa
+            else:
+                h = pa
+                if r + 1 < end:
+                    na = m[pairs[r + 1, 0]]
+                    nb = m[pairs[r + 1, 1]]
+                    if na != pa and nb != pa and (na == pb or nb == pb):
+                        h = pb
+                t = pb if h == pa else pa
+                ev = base + r
+                for u in range(hub_start[h], hub_start[h + 1]):
+                    g = hub_groups[u]
+                    for q in range(gstart[g], gstart[g + 1]):
+                        x = prev_pairs[q, 0]
+                        partner = prev_pairs[q, 1] if x == h else x
+                        if ow[partner] != ev:  # the first row of each partner
+                            ow[partner] = ev
+                            mk[partner] = q
+            q = np.int64(-1)
+            if ow[t] == ev:
+                q = mk[t]
+                if with_shift and not _same(prev_pairs, prev_shifts, q, pa, pb, True,
+                                            s0, s1, s2):
+                    q = _scan(h, pa, pb, prev_pairs, prev_shifts, gstart, hub_start,
+                              hub_groups, True, s0, s1, s2)
+            if q < 0 and t != h:
+                q = _scan(t, pa, pb, prev_pairs, prev_shifts, gstart, hub_start, hub_groups,
+                          with_shift, s0, s1, s2)
+            if q >= 0:
+                prev_rows[r] = q
+                matched[q] = 1
+
+
+@pjit
+def unmatched_rows(matched, bounds, counts, out, fill):
+    """Rows ``q`` with ``matched[q] == 0`` in increasing order: pass 1 (``fill``
+    False) counts chunk ``c``'s into ``counts[c]``, pass 2 writes them from
+    ``counts[c]`` (now the chunk's offset) into ``out``."""
+    for c in numba.prange(bounds.shape[0] - 1):
+        o = counts[c] if fill else 0
+        for q in range(bounds[c], bounds[c + 1]):
+            if matched[q] == 0:
+                if fill:
+                    out[o] = q
+                o += 1
+        if not fill:
+            counts[c] = o
+
+
+# ------------------------------------------------------------------ keys
+
+@ijit
+def _key_slot(keys, r, mask, shift):
+    h = np.uint64(0)
+    for c in range(keys.shape[1]):
+        h = (h ^ np.uint64(keys[r, c])) * _MIX
+        h ^= h >> np.uint64(29)
+    return np.int64((h * _MIX) >> shift) & mask
+
+
+@ijit
+def _rows_equal(a, r, b, q):
+    for c in range(a.shape[1]):
+        if a[r, c] != b[q, c]:
+            return False
+    return True
+
+
+@jit
+def key_table(keys, shift, slots):
+    """Hash table of the rows of ``keys``: ``slots[s]`` a row or -1.  Returns
+    ``(first, second)`` rows of a repeated key, or ``(-1, -1)``."""
+    mask = np.int64(slots.shape[0] - 1)
+    ushift = np.uint64(shift)
+    slots[:] = -1
+    for r in range(keys.shape[0]):
+        s = _key_slot(keys, r, mask, ushift)
+        while slots[s] >= 0:
+            if _rows_equal(keys, r, keys, slots[s]):
+                return slots[s], r
+            s = (s + 1) & mask
+        slots[s] = r
+    return -1, -1
+
+
+@pjit
+def match_keys(keys, prev_keys, shift, slots, bounds, prev_rows, matched):
+    """``prev_rows[r]``: the row of ``prev_keys`` equal to ``keys[r]`` (through its
+    table ``slots``) or -1; ``matched[q] = 1`` for every row found."""
+    mask = np.int64(slots.shape[0] - 1)
+    ushift = np.uint64(shift)
+    for c in numba.prange(bounds.shape[0] - 1):
+        for r in range(bounds[c], bounds[c + 1]):
+            prev_rows[r] = -1
+            if slots.shape[0] == 0:
+                continue
+            s = _key_slot(keys, r, mask, ushift)
+            while slots[s] >= 0:
+                q = slots[s]
+                if _rows_equal(keys, r, prev_keys, q):
+                    prev_rows[r] = q
+                    matched[q] = 1
+                    break
+                s = (s + 1) & mask
+
+
+#: the parallel kernels of this module, compiled serially (same names)
+serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in (
+    "group_pairs", "match_pairs", "unmatched_rows", "match_keys")})
