@@ -339,17 +339,15 @@ class PairIdentity(_Rows):
         self._dense = np.zeros(0, np.int64)
         self._hkeys = np.zeros(0, np.int64)
         self._hvals = np.zeros(0, np.int64)
-        self._rows = np.zeros(0, np.int64)
-        self._base = 0
-        self._mark = np.zeros((0, 0), np.int64)
-        self._owner = np.zeros((0, 0), np.int64)
-        self._gpos = self._ghub = None
+        self._groups = [[None, None], [None, None]]  # gpos, ghub: previous, this call
+        self._cut = None  # the previous pairs' groups, cut by the last call
         self._clumps = None
         self.clump_pairs = None
 
     # ---------------------------------------------------------------- ids
     def _map(self, n, ids, prev):
-        """(n,) int64: the previous row of every particle, or -1."""
+        """The previous row of every particle, or -1: an (n,) int64 array, or None
+        when every row is its own previous row (below the previous count)."""
         n_prev = prev[2]
         prev_ids = prev[3]
         if (ids is None) != (prev_ids is None) and n and n_prev:
@@ -358,13 +356,9 @@ class PairIdentity(_Rows):
         if ids is not None and prev_ids is None:
             return self._match_ids(_NO_ROWS, ids)  # checks that they are unique
         if ids is None or prev_ids is None:
-            if len(self._rows) < n:
-                self._rows = np.arange(n + n // 8, dtype=np.int64)
-            m = self._rows[:n].copy()
-            m[n_prev:] = -1
-            return m
+            return None
         if len(ids) == len(prev_ids) and np.array_equal(ids, prev_ids):
-            return np.arange(n, dtype=np.int64)
+            return None
         return self._match_ids(prev_ids, ids)
 
     def _match_ids(self, prev_ids, ids):
@@ -394,10 +388,13 @@ class PairIdentity(_Rows):
 
     def _jumps(self, positions, cell, pbc, m, prev):
         """(n, 3) int64: whole cell vectors each particle moved since the previous call."""
-        n = len(m)
+        n = len(positions)
         jumps = np.zeros((n, 3), np.int64)
         if cell is None or prev[4] is None or not n:
             return jumps
+        if m is None:
+            m = np.arange(n, dtype=np.int64)
+            m[prev[2]:] = -1
         has = m >= 0
         moved = positions[has] - prev[4][m[has]]
         frac = np.rint(moved @ np.linalg.inv(cell))
@@ -406,19 +403,28 @@ class PairIdentity(_Rows):
         return jumps
 
     # --------------------------------------------------------------- pairs
+    def _group_buffers(self, which, k):
+        buf = self._groups[which]
+        buf[0] = _grow(buf[0], k + 1, np.int64)
+        buf[1] = _grow(buf[1], k, np.int64)
+        return buf
+
     def _index(self, pairs, n_prev, kernels, chunks):
-        """Groups of the previous pairs and their CSR by hub (kernels module docstring)."""
+        """Groups of the previous pairs and their CSR by hub (kernels module docstring),
+        cut by the last call's matching pass or here."""
         k = len(pairs)
-        self._gpos = _grow(self._gpos, k + 1, np.int64)
-        self._ghub = _grow(self._ghub, k, np.int64)
-        bounds = _bounds(k, chunks)
-        counts = np.zeros(chunks, np.int64)
-        kernels.group_pairs(pairs, bounds, self._gpos, self._ghub, counts)
+        if self._cut is not None:
+            bounds, counts = self._cut
+            gpos, ghub = self._groups[0]
+        else:
+            gpos, ghub = self._group_buffers(0, k)
+            bounds = _bounds(k, chunks)
+            counts = np.zeros(chunks, np.int64)
+            kernels.group_pairs(pairs, bounds, gpos, ghub, counts)
         hub_start = np.empty(n_prev + 1, np.int64)
         hub_groups = np.empty(int(counts.sum()), np.int64)
-        g = kern.hub_index(bounds, counts, self._gpos, self._ghub, k, n_prev, hub_start,
-                           hub_groups)
-        return self._gpos[:g + 1], hub_start, hub_groups
+        g = kern.hub_index(bounds, counts, gpos, ghub, k, n_prev, hub_start, hub_groups)
+        return gpos[:g + 1], ghub[:g], hub_start, hub_groups
 
     def update(self, pairs, n, *, ids=None, shifts=None, positions=None, cell=None,
                pbc=None, labels=None, borrow=False):
@@ -480,18 +486,19 @@ class PairIdentity(_Rows):
             def fill_rows(out):
                 if k_prev == 0 or k == 0:
                     out[:] = -1
+                    self._cut = None  # the next call cuts this call's pairs itself
                     return
-                gstart, hub_start, hub_groups = self._index(prev[0], prev[2], kernels,
-                                                            chunks)
-                n_prev = prev[2]
-                if self._mark.shape[0] != chunks or self._mark.shape[1] < n_prev:
-                    self._mark = np.empty((chunks, n_prev + n_prev // 8), np.int64)
-                    self._owner = np.full((chunks, n_prev + n_prev // 8), -1, np.int64)
-                kernels.match_pairs(pairs, m, self.shifts, shifts,
+                index = self._index(prev[0], prev[2], kernels, chunks)
+                bounds = _bounds(k, chunks)
+                counts = np.zeros(chunks, np.int64)
+                gpos, ghub = self._group_buffers(1, k)
+                kernels.match_pairs(pairs, _NO_ROWS if m is None else m, m is not None,
+                                    prev[2], self.shifts, shifts,
                                     jumps if self.shifts else _NO_SHIFTS, prev[0], prev[1],
-                                    gstart, hub_start, hub_groups, _bounds(k, chunks),
-                                    self._mark, self._owner, self._base, out, matched)
-                self._base += k + 1
+                                    *index, bounds, out, matched, gpos, ghub, counts)
+                # this call's groups serve the next call
+                self._groups.reverse()
+                self._cut = (bounds, counts)
 
             self._publish(k, k_prev, fill_rows, matched, chunks, kernels)
             self._track_clumps(pairs, labels)

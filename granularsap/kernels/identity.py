@@ -187,36 +187,62 @@ def _same(prev_pairs, prev_shifts, q, pa, pb, with_shift, s0, s1, s2):
 
 
 @ijit
-def _scan(hub, pa, pb, prev_pairs, prev_shifts, gstart, hub_start, hub_groups, with_shift,
-          s0, s1, s2):
-    """The previous row of ``(pa, pb, s)`` among the groups of ``hub``, or -1."""
+def _scan(hub, skip, pa, pb, prev_pairs, prev_shifts, gpos, hub_start, hub_groups,
+          with_shift, s0, s1, s2):
+    """``(row, group)`` of ``(pa, pb, s)`` among the previous groups of ``hub`` but
+    ``skip``, or ``(-1, -1)``."""
     for t in range(hub_start[hub], hub_start[hub + 1]):
         g = hub_groups[t]
-        for q in range(gstart[g], gstart[g + 1]):
+        if g == skip:
+            continue
+        for q in range(gpos[g], gpos[g + 1]):
             if _same(prev_pairs, prev_shifts, q, pa, pb, with_shift, s0, s1, s2):
-                return q
-    return np.int64(-1)
+                return q, g
+    return np.int64(-1), np.int64(-1)
+
+
+#: entries of the previous group tried from where the last pair was found
+_WINDOW = 4
+#: previous groups tried after the last one used when a group starts
+_LOOKAHEAD = 4
 
 
 @pjit
-def match_pairs(pairs, m, with_shift, shifts, jumps, prev_pairs, prev_shifts, gstart,
-                hub_start, hub_groups, bounds, mark, owner, base, prev_rows, matched):
+def match_pairs(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, prev_shifts,
+                gpos, ghub, hub_start, hub_groups, bounds, prev_rows, matched, cur_gpos,
+                cur_ghub, cur_counts):
     """``prev_rows[r]``: the previous row of pair ``r`` or -1, and ``matched[q] = 1``
-    for every previous row found (module docstring).  Chunk ``c`` of rows
-    ``bounds[c]:bounds[c + 1]`` stamps into ``mark[c]``, ``owner[c]``; stamps are
-    numbered from ``base`` (larger than every number of earlier calls)."""
+    for every previous row found (module docstring).  ``m`` maps rows to previous
+    rows when ``mapped``, else a row is its own previous row below ``n_prev``.
+    Chunk ``c`` takes rows ``bounds[c]:bounds[c + 1]``, and cuts them into groups
+    for the next call as ``group_pairs`` does (``cur_gpos``, ``cur_ghub``,
+    ``cur_counts``)."""
+    n_groups = ghub.shape[0]
     for c in numba.prange(bounds.shape[0] - 1):
         lo = bounds[c]
         end = bounds[c + 1]
-        mk = mark[c]
-        ow = owner[c]
-        h = np.int64(-1)
-        ev = np.int64(-1)
+        cg = lo
+        ch = np.int64(-1)
+        h = np.int64(-1)  # hub of the current group (a previous row)
+        pg = np.int64(-1)  # the previous group of h in use, or -1
+        j = np.int64(0)  # where in it the last pair was found, plus one
+        nxt = np.int64(0)  # the previous group the next current group likely has
         for r in range(lo, end):
             a = pairs[r, 0]
             b = pairs[r, 1]
-            pa = m[a]
-            pb = m[b]
+            if a != ch and b != ch:  # this list's groups, for the next call
+                ch = a
+                if r + 1 < end and not _has(pairs, r + 1, a) and _has(pairs, r + 1, b):
+                    ch = b
+                cur_gpos[cg] = r
+                cur_ghub[cg] = ch
+                cg += 1
+            if mapped:
+                pa = m[a]
+                pb = m[b]
+            else:
+                pa = a if a < n_prev else np.int64(-1)
+                pb = b if b < n_prev else np.int64(-1)
             prev_rows[r] = -1
             if pa < 0 or pb < 0:
                 continue
@@ -229,36 +255,59 @@ def match_pairs(pairs, m, with_shift, shifts, jumps, prev_pairs, prev_shifts, gs
                 t = pb
             elif pb == h:
                 t = pa
-            else:
+            else:  # a new group: its hub, then its hub's previous group
                 h = pa
                 if r + 1 < end:
-                    na = m[pairs[r + 1, 0]]
-                    nb = m[pairs[r + 1, 1]]
+                    na = pairs[r + 1, 0]
+                    nb = pairs[r + 1, 1]
+                    if mapped:
+                        na = m[na]
+                        nb = m[nb]
+                    elif na >= n_prev or nb >= n_prev:
+                        na = nb = np.int64(-1)
                     if na != pa and nb != pa and (na == pb or nb == pb):
                         h = pb
                 t = pb if h == pa else pa
-                ev = base + r
-                for u in range(hub_start[h], hub_start[h + 1]):
-                    g = hub_groups[u]
-                    for q in range(gstart[g], gstart[g + 1]):
-                        x = prev_pairs[q, 0]
-                        partner = prev_pairs[q, 1] if x == h else x
-                        if ow[partner] != ev:  # the first row of each partner
-                            ow[partner] = ev
-                            mk[partner] = q
+                # the group after the last one used (the two lists usually
+                # follow one order), else the one found below
+                pg = -1
+                for u in range(nxt, min(nxt + _LOOKAHEAD, n_groups)):
+                    if ghub[u] == h:
+                        pg = u
+                        break
+                if pg >= 0:
+                    j = gpos[pg]
+                    nxt = pg + 1
             q = np.int64(-1)
-            if ow[t] == ev:
-                q = mk[t]
-                if with_shift and not _same(prev_pairs, prev_shifts, q, pa, pb, True,
-                                            s0, s1, s2):
-                    q = _scan(h, pa, pb, prev_pairs, prev_shifts, gstart, hub_start,
-                              hub_groups, True, s0, s1, s2)
+            if pg >= 0:
+                gs = gpos[pg]
+                ge = gpos[pg + 1]
+                for u in range(j, min(j + _WINDOW, ge)):
+                    if _same(prev_pairs, prev_shifts, u, pa, pb, with_shift, s0, s1, s2):
+                        q = u
+                        break
+                if q < 0:
+                    for u in range(gs, ge):
+                        if _same(prev_pairs, prev_shifts, u, pa, pb, with_shift, s0, s1,
+                                 s2):
+                            q = u
+                            break
+                if q >= 0:
+                    j = q + 1
+            if q < 0 and hub_start[h + 1] - hub_start[h] > (1 if pg >= 0 else 0):
+                q, g = _scan(h, pg, pa, pb, prev_pairs, prev_shifts, gpos, hub_start,
+                             hub_groups, with_shift, s0, s1, s2)
+                if q >= 0:  # follow the order of the previous list from there
+                    pg = g
+                    j = q + 1
+                    nxt = g + 1
             if q < 0 and t != h:
-                q = _scan(t, pa, pb, prev_pairs, prev_shifts, gstart, hub_start, hub_groups,
-                          with_shift, s0, s1, s2)
+                q, g = _scan(t, -1, pa, pb, prev_pairs, prev_shifts, gpos, hub_start,
+                             hub_groups, with_shift, s0, s1, s2)
             if q >= 0:
                 prev_rows[r] = q
                 matched[q] = 1
+        cur_counts[c] = cg - lo
 
 
 @pjit
