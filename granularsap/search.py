@@ -952,12 +952,22 @@ class NeighborSearch(_Search):
         as measured; ``stats["path"]`` and ``stats["path_reason"]`` say which
         and why.  Results are the same on every path.
 
+    identity : bool, optional
+        Follow pairs across calls: after each :meth:`update`,
+        ``previous_rows`` (the row of each pair in the previous call's result,
+        -1 for a new pair), ``ended_rows`` and :meth:`carry` (a history array
+        moved to the new rows); particles matched by ``ids=`` or by row, with
+        every periodic image also by lattice shift (docs/identity.md).  Needs
+        ``layout="pairs"``.
+
     Notes
     -----
-    Returned arrays are views of buffers the search owns: they stay valid
-    until the next :meth:`update` of the same search; pass ``copy=True`` (or
-    copy them) to keep them longer.  Indices are int64; inside, particles are
-    held in column order with int64 partner indices and int32-packed shifts.
+    Returned arrays are views of buffers the search owns: they stay valid and
+    unchanged until the call after next of the same search (two sets of
+    output buffers alternate, so the previous call's result can be read while
+    this call's is in hand); pass ``copy=True`` (or copy them) to keep them
+    longer.  Indices are int64; inside, particles are held in column order
+    with int64 partner indices and int32-packed shifts.
 
     Examples
     --------
@@ -1022,8 +1032,15 @@ class ContactSearch(_Search):
     ----------
     skin : float, optional
         Contact distance added to every pair's ``r_i + r_j``.
-    rebuild_margin, quantities, layout, periodic_images, include_cutoff, n_threads, path
+    rebuild_margin, quantities, layout, periodic_images, include_cutoff, n_threads, path, identity
         As for :class:`NeighborSearch` (default quantities ``'P'``).
+
+    Notes
+    -----
+    As for :class:`NeighborSearch`: results stay valid until the call after
+    next.  With ``identity=True`` and ``clump_ids``, the clump pairs in
+    contact get their own identity (``clump_pairs``, ``previous_clump_rows``,
+    ``ended_clump_rows``, ``carry(h, clumps=True)``).
 
     Examples
     --------
@@ -1035,6 +1052,16 @@ class ContactSearch(_Search):
     [[0, 1]]
     >>> search.update(pos, [1.0, 0.5, 1.0], clump_ids=[3, 3, 4]).tolist()
     []
+
+    Contacts followed across calls, particles by id (here reordered):
+
+    >>> search = ContactSearch(identity=True)
+    >>> search.update(pos, 1.0, ids=[7, 8, 9]).tolist()
+    [[0, 1]]
+    >>> search.update(pos[::-1], 1.0, ids=[9, 8, 7]).tolist(), search.previous_rows.tolist()
+    ([[1, 2]], [0])
+    >>> search.carry(np.array([0.25]), fill=0.0).tolist()
+    [0.25]
     """
 
     _what = "interaction range 2 * max(radii) + skin"

@@ -4,25 +4,28 @@ row of this result continues.
 Particle pairs (``match_pairs``)
 --------------------------------
 Both pair lists come from the same search, which writes the pairs of one
-particle (the "source" of its sweep) one after another.  The previous list is
-cut into *groups*: maximal runs of consecutive pairs that share one particle,
-the group's *hub* (``group_pairs``; a new group takes as hub the particle it
-shares with the next pair, else its first).  Groups are then sorted by hub
-(a counting sort over particles), so that every particle's groups are one
-range of ``hub_groups``.
+particle (the "source" of a sweep over one stencil column) one after another,
+in an order that moves little between calls.  Each list is cut into *groups*:
+maximal runs of consecutive pairs that share one particle, the group's *hub*
+(a new group takes as hub the particle it shares with the next pair, else its
+first; ``group_pairs``, or the matching pass of the call before for its own
+list).  The previous list's groups are also sorted by hub (``hub_index``, a
+counting sort over particles), so that every particle's groups are one range
+of ``hub_groups``.
 
-A pair of this call is first mapped to the previous call's rows of its two
-particles (``m``, from the ids).  This list is cut into groups on the fly by
-the same rule; when a group starts, the partners of its hub in the hub's
-previous groups are *stamped* into a per-thread table (``mark[partner]`` = the
-previous row, ``owner[partner]`` = a number unique to this stamping).  Each
-pair of the group then finds its previous row in O(1).  A pair whose previous
-row was in a group of its other particle (the search chose the other source,
-or the pair is new) scans that particle's previous groups.  When both lists
-come from the same sweep and the particles moved a little, nearly every pair
-is found by its stamp, and the cost is a few streaming passes over the two
-lists: O(pairs + particles) per call.  The answer does not depend on how the
-list is split between threads: every pair has at most one previous row.
+A pair of this call is mapped to the previous call's rows of its two
+particles (``m``, from the ids).  When a group of this list starts, its hub
+is looked for among the next few previous groups after the last one used
+(the two lists follow one order); inside a group, each pair is looked for
+from where the last pair was found, then in the whole group.  A pair not
+found there (its partner moved to another column, the search chose the other
+source, or the pair is new) scans the other previous groups of its hub, and
+the order is followed from where it was found, then the groups of its other
+particle.  Continuing pairs in step with the previous list cost a few
+sequential reads each; a pair that changed group or is new costs the scan of
+its two particles' groups (random accesses).  O(pairs + particles) per call.
+The answer does not depend on how the list is split between threads: every
+pair has at most one previous row.
 
 With every periodic image (``with_shift``), a pair is the same when its two
 particles and its lattice shift are: the current shift, corrected by the
@@ -30,8 +33,8 @@ whole cell vectors each particle jumped between the two calls (``jumps``),
 equals the previous one (negated when the two particles come in the other
 order, either sign for a particle's own image).
 
-Keys (``KeyTable``)
--------------------
+Keys (``key_table``, ``match_keys``)
+-----------------------------------
 Contacts given by integer keys (any number of int64 columns) are matched
 with an open-addressing hash table of the previous call's keys (multiplicative
 hashing, linear probing), built once per call in O(rows) and probed by every
