@@ -36,6 +36,8 @@ __all__ = ["ContactIdentity", "PairIdentity", "as_ids"]
 _PARALLEL_MIN = 50000
 _NO_SHIFTS = np.zeros((0, 3), np.int64)
 _NO_ROWS = np.zeros(0, np.int64)
+_NO_X = np.zeros((0, 3))
+_NO_R = np.zeros(0)
 
 
 def as_ids(ids, n, name="ids"):
@@ -341,6 +343,7 @@ class PairIdentity(_Rows):
         self._hvals = np.zeros(0, np.int64)
         self._groups = [[None, None], [None, None]]  # gpos, ghub: previous, this call
         self._cut = None  # the previous pairs' groups, cut by the last call
+        self._far = None  # the previous call's range, when the caller told it
         self._clumps = None
         self.clump_pairs = None
 
@@ -422,12 +425,12 @@ class PairIdentity(_Rows):
             counts = np.zeros(chunks, np.int64)
             kernels.group_pairs(pairs, bounds, gpos, ghub, counts)
         hub_start = np.empty(n_prev + 1, np.int64)
-        hub_groups = np.empty(int(counts.sum()), np.int64)
+        hub_groups = np.empty((int(counts.sum()), 4), np.int64)  # 32 bytes a row
         g = kern.hub_index(bounds, counts, gpos, ghub, k, n_prev, hub_start, hub_groups)
         return gpos[:g + 1], ghub[:g], hub_start, hub_groups
 
     def update(self, pairs, n, *, ids=None, shifts=None, positions=None, cell=None,
-               pbc=None, labels=None, borrow=False):
+               pbc=None, labels=None, radii=None, skin=0.0, borrow=False):
         """Match this call's pairs to the previous call's.
 
         Parameters
@@ -451,6 +454,14 @@ class PairIdentity(_Rows):
             Periodic axes of ``cell``.
         labels : (n,) int64 ndarray, optional
             Clump label of every particle: clump pairs get their identity too.
+        radii : (n,) ndarray of float, optional
+            A hint (without ``shifts``): ``pairs`` holds every pair within
+            ``radii[i] + radii[j] + skin`` of each other under the minimum image
+            of ``cell`` (with ``positions``), as the searches' results do.  Then
+            a pair whose particles were farther apart in the previous call is
+            known to be new without a search.
+        skin : float, optional
+            Added to ``radii[i] + radii[j]`` (with ``radii``).
         borrow : bool, optional
             Keep ``pairs`` and ``shifts`` without copying them (the caller keeps
             them unchanged until the next call).
@@ -489,13 +500,14 @@ class PairIdentity(_Rows):
                     self._cut = None  # the next call cuts this call's pairs itself
                     return
                 index = self._index(prev[0], prev[2], kernels, chunks)
+                far = self._far if self._far is not None else (_NO_X, _NO_R, _NO_R, 0.0)
                 bounds = _bounds(k, chunks)
                 counts = np.zeros(chunks, np.int64)
                 gpos, ghub = self._group_buffers(1, k)
                 kernels.match_pairs(pairs, _NO_ROWS if m is None else m, m is not None,
                                     prev[2], self.shifts, shifts,
                                     jumps if self.shifts else _NO_SHIFTS, prev[0], prev[1],
-                                    *index, bounds, out, matched, gpos, ghub, counts)
+                                    *index, *far, bounds, out, matched, gpos, ghub, counts)
                 # this call's groups serve the next call
                 self._groups.reverse()
                 self._cut = (bounds, counts)
@@ -505,8 +517,27 @@ class PairIdentity(_Rows):
         keep = None
         if self.shifts and positions is not None:
             keep = np.array(positions, dtype=np.float64)
+        self._far = self._range_hint(positions, cell, pbc, radii, skin)
         self._prev = (pairs, shifts, int(n), None if ids is None else ids.copy(), keep)
         return self.previous_rows
+
+    def _range_hint(self, positions, cell, pbc, radii, skin):
+        """What ``_apart`` needs of this call for the next (None: no hint): minimum
+        image over an orthorhombic or open cell only."""
+        if self.shifts or radii is None or positions is None or not len(positions):
+            return None
+        lengths = np.zeros(3)
+        if cell is not None:
+            cell = np.asarray(cell, dtype=np.float64)
+            if np.any(cell - np.diag(np.diag(cell))):
+                return None
+            lengths = np.where(np.asarray(pbc, bool), np.abs(np.diag(cell)), 0.0)
+        x = np.array(positions, dtype=np.float64)
+        r = np.array(radii, dtype=np.float64)
+        # rounding of the search's and of this test's distances, generously
+        tol = 1e-9 * (2.0 * float(r.max()) + abs(skin) + float(lengths.max())
+                      + float(np.abs(x).max()))
+        return x, r, lengths, float(skin) + tol
 
     # -------------------------------------------------------------- clumps
     def _track_clumps(self, pairs, labels):

@@ -829,21 +829,20 @@ class _Search:
     def _track(self, total):
         """Contact identity of this call's pairs (granularsap.identity)."""
         t0 = time.perf_counter()
-        ids, positions, box, pbc, labels = self._id_call
-        cell = pbc_arr = None
-        shifts = None
-        if self._tracker.shifts:
-            shifts = self._out_s[:total]
-            cell, pbc_arr = _resolve_cell(box, pbc)
+        ids, positions, box, pbc, labels, rad, skin = self._id_call
+        cell, pbc_arr = _resolve_cell(box, pbc)
+        shifts = self._out_s[:total] if self._tracker.shifts else None
+        # the pairs are every pair within rad_i + rad_j + skin: the tracker tells
+        # new pairs from their previous distance
         self._tracker.update(self._out_p[:total], len(positions), ids=ids, shifts=shifts,
                              positions=positions, cell=cell, pbc=pbc_arr, labels=labels,
-                             borrow=True)
+                             radii=rad, skin=skin, borrow=True)
         self._identity_seconds = time.perf_counter() - t0
 
     def _run_tracked(self, positions, rad, skin, box, pbc, labels, copy, ids):
         """One call through ``_frame``, its outputs in this call's buffer set, and
         the identity of its pairs."""
-        self._id_call = (ids, positions, box, pbc, labels)
+        self._id_call = (ids, positions, box, pbc, labels, rad, skin)
         self._identity_seconds = None
         self._outputs_begin()
         result = self._frame(positions, rad, skin, box, pbc, labels, copy)

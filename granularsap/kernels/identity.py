@@ -11,7 +11,8 @@ maximal runs of consecutive pairs that share one particle, the group's *hub*
 first; ``group_pairs``, or the matching pass of the call before for its own
 list).  The previous list's groups are also sorted by hub (``hub_index``, a
 counting sort over particles), so that every particle's groups are one range
-of ``hub_groups``.
+of ``hub_groups`` (each entry the group and its first and last rows plus one, on
+one cache line).
 
 A pair of this call is mapped to the previous call's rows of its two
 particles (``m``, from the ids).  When a group of this list starts, its hub
@@ -147,7 +148,8 @@ def group_pairs(pairs, bounds, gpos, ghub, counts):
 def hub_index(bounds, counts, gpos, ghub, k, n_rows, hub_start, hub_groups):
     """Compact the chunks' groups into ``gpos`` (their first rows, then ``k``) and sort
     them by hub: the groups of particle ``h`` are
-    ``hub_groups[hub_start[h]:hub_start[h + 1]]``.  Returns the group count."""
+    ``hub_groups[hub_start[h]:hub_start[h + 1]]``, rows ``(group, first row, end
+    row)``.  Returns the group count."""
     g = 0
     for c in range(counts.shape[0]):
         lo = bounds[c]
@@ -163,7 +165,10 @@ def hub_index(bounds, counts, gpos, ghub, k, n_rows, hub_start, hub_groups):
         hub_start[h + 1] += hub_start[h]
     for t in range(g):
         h = ghub[t]
-        hub_groups[hub_start[h]] = t
+        u = hub_start[h]
+        hub_groups[u, 0] = t
+        hub_groups[u, 1] = gpos[t]
+        hub_groups[u, 2] = gpos[t + 1]
         hub_start[h] += 1
     for h in range(n_rows, 0, -1):
         hub_start[h] = hub_start[h - 1]
@@ -195,13 +200,27 @@ def _scan(hub, skip, pa, pb, prev_pairs, prev_shifts, gpos, hub_start, hub_group
     """``(row, group)`` of ``(pa, pb, s)`` among the previous groups of ``hub`` but
     ``skip``, or ``(-1, -1)``."""
     for t in range(hub_start[hub], hub_start[hub + 1]):
-        g = hub_groups[t]
+        g = hub_groups[t, 0]
         if g == skip:
             continue
-        for q in range(gpos[g], gpos[g + 1]):
+        for q in range(hub_groups[t, 1], hub_groups[t, 2]):
             if _same(prev_pairs, prev_shifts, q, pa, pb, with_shift, s0, s1, s2):
                 return q, g
     return np.int64(-1), np.int64(-1)
+
+
+@ijit
+def _apart(x, rad, lengths, pa, pb, slack):
+    """Whether previous rows ``pa``, ``pb`` were farther apart than
+    ``rad[pa] + rad[pb] + slack`` (minimum image over the axes of length > 0)."""
+    d2 = 0.0
+    for c in range(3):
+        d = x[pb, c] - x[pa, c]
+        if lengths[c] > 0:
+            d -= lengths[c] * np.rint(d / lengths[c])
+        d2 += d * d
+    reach = rad[pa] + rad[pb] + slack
+    return d2 > reach * reach
 
 
 #: entries of the previous group tried from where the last pair was found
@@ -212,15 +231,19 @@ _LOOKAHEAD = 4
 
 @pjit
 def match_pairs(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, prev_shifts,
-                gpos, ghub, hub_start, hub_groups, bounds, prev_rows, matched, cur_gpos,
-                cur_ghub, cur_counts):
+                gpos, ghub, hub_start, hub_groups, far_x, far_r, far_len, far_slack, bounds,
+                prev_rows, matched, cur_gpos, cur_ghub, cur_counts):
     """``prev_rows[r]``: the previous row of pair ``r`` or -1, and ``matched[q] = 1``
     for every previous row found (module docstring).  ``m`` maps rows to previous
     rows when ``mapped``, else a row is its own previous row below ``n_prev``.
     Chunk ``c`` takes rows ``bounds[c]:bounds[c + 1]``, and cuts them into groups
     for the next call as ``group_pairs`` does (``cur_gpos``, ``cur_ghub``,
-    ``cur_counts``)."""
+    ``cur_counts``).  With previous positions ``far_x`` (else empty), a pair
+    not in step whose particles were farther apart than their radii ``far_r``
+    plus ``far_slack`` (``_apart``) is new without a scan: the previous list
+    held every pair within that range."""
     n_groups = ghub.shape[0]
+    far = far_x.shape[0] > 0
     for c in numba.prange(bounds.shape[0] - 1):
         lo = bounds[c]
         end = bounds[c + 1]
@@ -297,6 +320,8 @@ def match_pairs(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs,
                             break
                 if q >= 0:
                     j = q + 1
+            if q < 0 and far and _apart(far_x, far_r, far_len, pa, pb, far_slack):
+                continue  # out of range in the previous call: new
             if q < 0 and hub_start[h + 1] - hub_start[h] > (1 if pg >= 0 else 0):
                 q, g = _scan(h, pg, pa, pb, prev_pairs, prev_shifts, gpos, hub_start,
                              hub_groups, with_shift, s0, s1, s2)
