@@ -344,6 +344,7 @@ class PairIdentity(_Rows):
         self._groups = [[None, None], [None, None]]  # gpos, ghub: previous, this call
         self._cut = None  # the previous pairs' groups, cut by the last call
         self._far = None  # the previous call's range, when the caller told it
+        self._hub_start = self._hub_groups = None
         self._clumps = None
         self.clump_pairs = None
 
@@ -424,8 +425,11 @@ class PairIdentity(_Rows):
             bounds = _bounds(k, chunks)
             counts = np.zeros(chunks, np.int64)
             kernels.group_pairs(pairs, bounds, gpos, ghub, counts)
-        hub_start = np.empty(n_prev + 1, np.int64)
-        hub_groups = np.empty((int(counts.sum()), 4), np.int64)  # 32 bytes a row
+        self._hub_start = _grow(self._hub_start, n_prev + 1, np.int64)
+        hub_start = self._hub_start[:n_prev + 1]
+        n_groups = int(counts.sum())
+        self._hub_groups = _grow(self._hub_groups, n_groups, np.int64, (4,))  # 32 bytes
+        hub_groups = self._hub_groups[:n_groups]
         g = kern.hub_index(bounds, counts, gpos, ghub, k, n_prev, hub_start, hub_groups)
         return gpos[:g + 1], ghub[:g], hub_start, hub_groups
 
