@@ -172,15 +172,16 @@ class TestAgainstOracle:
                                 all_images=False)
         assert rebuilt == ({True} if margin == 0 else {True, False})
 
+    @pytest.mark.parametrize("path", ["columns", "sweep"])
     @pytest.mark.parametrize("margin", [0.0, 0.4], ids=["rebuild", "verlet"])
     @pytest.mark.parametrize("wrap", [False, True], ids=["unwrapped", "wrapped"])
     @pytest.mark.parametrize("use_ids", [True, False], ids=["ids", "rows"])
-    def test_every_image_in_a_small_cell(self, threads, margin, wrap, use_ids):
+    def test_every_image_in_a_small_cell(self, threads, path, margin, wrap, use_ids):
         # a cell 6 wide, cutoff 3.4: several images of a pair and particles' own
         # images; the drift carries particles over faces every few steps
         frames = trajectory(3, 8, 20, churn=1 if use_ids else 0, reorder=use_ids,
                             wrap=wrap, drift=0.37)
-        search = NeighborSearch(3.4, rebuild_margin=margin, quantities="PdS",
+        search = NeighborSearch(3.4, rebuild_margin=margin, quantities="PdS", path=path,
                                 periodic_images="all", n_threads=threads, identity=True)
         run_and_check(search, frames, use_ids=use_ids, contacts=False, all_images=True)
 
@@ -354,6 +355,21 @@ class TestCarry:
         np.testing.assert_array_equal(out, got)
         vec = search.carry(np.arange(len(p1)), fill=[-1])
         assert vec.shape == (len(p2),)
+
+    def test_clump_pair_history(self):
+        frames = trajectory(16, 5, 200, churn=2, reorder=True, wrap=True)
+        search = ContactSearch(skin=0.1, identity=True)
+        hist = None
+        for _true_pos, shown, ids, rad, lab in frames:
+            search.update(shown, rad, BOX, ids=ids, clump_ids=lab)
+            cp = search.clump_pairs
+            code = cp[:, 0] * 10**6 + cp[:, 1]
+            if hist is not None:
+                hist = search.carry(hist, fill=-1, clumps=True)
+                old = search.previous_clump_rows >= 0
+                np.testing.assert_array_equal(hist[old], code[old])
+                assert np.all(hist[~old] == -1)
+            hist = code
 
     def test_carry_from_nothing(self):
         search = NeighborSearch(1.3, identity=True)
