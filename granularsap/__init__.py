@@ -10,12 +10,17 @@ from .api import SweepAndPrune, box_overlaps
 from .cell import Cell
 from .particles import clump_contacts, neighbor_pairs, sphere_contacts
 from .search import ContactSearch, NeighborSearch
+from .walls import Plane, TriangleMesh, WallContacts, WallSearch
 
 __all__ = [
     "Cell",
     "ContactSearch",
     "NeighborSearch",
+    "Plane",
     "SweepAndPrune",
+    "TriangleMesh",
+    "WallContacts",
+    "WallSearch",
     "__version__",
     "box_overlaps",
     "clump_contacts",

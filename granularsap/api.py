@@ -22,6 +22,7 @@ from ._numba import num_threads
 from ._validate import as_coords, check_n_threads
 from .kernels import boxgrid as bg
 from .kernels import checks as _checks
+from .kernels import cross as _cross
 from .kernels import grid as column_kernels
 from .kernels import radixsort as rs
 from .kernels import succtree as st
@@ -104,22 +105,23 @@ def _parse_axes(axes):
     return pair, False
 
 
-def _check_boxes(lower, upper):
-    lower = as_coords(lower, "lower", check_finite=False)
-    upper = as_coords(upper, "upper", check_finite=False)
+def _check_boxes(lower, upper, names=("lower", "upper")):
+    ln, un = names
+    lower = as_coords(lower, ln, check_finite=False)
+    upper = as_coords(upper, un, check_finite=False)
     if lower.shape[0] != upper.shape[0]:
-        raise ValueError("lower and upper must have the same number of rows, got "
+        raise ValueError(f"{ln} and {un} must have the same number of rows, got "
                          f"{lower.shape[0]} and {upper.shape[0]}")
     if lower.shape[0] > MAX_BOXES:
         raise ValueError(f"at most {MAX_BOXES} boxes are supported, got {lower.shape[0]}")
     status, i, a = _checks.check_boxes(lower, upper)
     if status == _checks.NONFINITE_LOWER:
-        raise ValueError(f"lower must be finite, got NaN or inf in row {i}")
+        raise ValueError(f"{ln} must be finite, got NaN or inf in row {i}")
     if status == _checks.NONFINITE_UPPER:
-        raise ValueError(f"upper must be finite, got NaN or inf in row {i}")
+        raise ValueError(f"{un} must be finite, got NaN or inf in row {i}")
     if status == _checks.INVERTED:
-        raise ValueError(f"lower must not exceed upper, got lower={float(lower[i, a])!r} > "
-                         f"upper={float(upper[i, a])!r} at box {i}, axis {a}")
+        raise ValueError(f"{ln} must not exceed {un}, got {ln}={float(lower[i, a])!r} > "
+                         f"{un}={float(upper[i, a])!r} at box {i}, axis {a}")
     return lower, upper
 
 
@@ -839,29 +841,89 @@ def _box_overlaps_path(lower, upper, *, path=None, n_threads=None, partitions=No
     return engine.update(lower, upper)
 
 
-def box_overlaps(lower, upper, *, n_threads=None):
-    """All pairs of overlapping axis-aligned boxes.
+def _cross_axis(lower, upper, lower_b, upper_b):
+    """Sweep axis of the cross-set query: the one with the fewest expected
+    candidates, ``n m (mean side of A + mean side of B) / span`` (boxes spread
+    evenly over the span of both sets), from the data only."""
+    best, axis = np.inf, 0
+    for c in range(3):
+        span = max(float(upper[:, c].max()), float(upper_b[:, c].max())) - min(
+            float(lower[:, c].min()), float(lower_b[:, c].min()))
+        side = float(np.mean(upper[:, c] - lower[:, c])) + float(
+            np.mean(upper_b[:, c] - lower_b[:, c]))
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            cost = side / span if span > 0 else np.inf
+        if not np.isfinite(cost):
+            cost = np.inf
+        if cost < best:
+            best, axis = cost, c
+    return axis
 
-    One call of a fresh :class:`SweepAndPrune` with ``path="auto"``: the
-    column sweep for boxes of similar sizes, the paper's parallel sweep for
-    few boxes or widely spread sizes (docs/boxes.md).
+
+def _cross_overlaps(lower, upper, lower_b, upper_b, threads, axis=None):
+    """Pairs (a, b) of overlapping boxes of two validated sets, rows sorted."""
+    n, m = lower.shape[0], lower_b.shape[0]
+    if n == 0 or m == 0:
+        return np.empty((0, 2), np.int64)
+    if axis is None:
+        axis = _cross_axis(lower, upper, lower_b, upper_b)
+    order_a = np.argsort(lower[:, axis], kind="stable")
+    order_b = np.argsort(lower_b[:, axis], kind="stable")
+    key_a = np.ascontiguousarray(lower[order_a, axis])
+    key_b = np.ascontiguousarray(lower_b[order_b, axis])
+    cnt_a = np.empty(n, np.int64)
+    cnt_b = np.empty(m, np.int64)
+    k = _cross if threads > 1 else _cross.serial
+    k.count(lower, upper, lower_b, upper_b, axis, key_a, order_a, key_b, order_b, cnt_a,
+            cnt_b)
+    off = np.concatenate(([0], np.cumsum(cnt_a), np.sum(cnt_a) + np.cumsum(cnt_b)))
+    total = int(off[-1])
+    out = np.empty((total, 2), np.int64)
+    if total:
+        k.fill(lower, upper, lower_b, upper_b, axis, key_a, order_a, key_b, order_b,
+               off[:n], off[n:n + m], out)
+    if total > 1:
+        if n * m < (1 << 62):
+            key = out[:, 0] * m + out[:, 1]
+            out = out[np.argsort(key, kind="stable")]
+        else:  # pragma: no cover - more than 2**31 boxes in each set
+            out = out[np.lexsort((out[:, 1], out[:, 0]))]
+    return out
+
+
+def box_overlaps(lower, upper, lower_b=None, upper_b=None, *, n_threads=None):
+    """All pairs of overlapping axis-aligned boxes, in one set or across two.
+
+    With one set, one call of a fresh :class:`SweepAndPrune` with
+    ``path="auto"``: the column sweep for boxes of similar sizes, the paper's
+    parallel sweep for few boxes or widely spread sizes (docs/boxes.md).
+    With a second set (``lower_b``, ``upper_b``), every pair of a box of the
+    first set and a box of the second that overlap (a cross-set query:
+    spheres against the triangles of a wall, a reference against a
+    configuration), from a sweep over both sets with set labels
+    (``kernels/cross.py``).
 
     Parameters
     ----------
     lower, upper : (n, 3) array_like of float
         Minimum and maximum corners.  Boxes are closed (touching counts).
+    lower_b, upper_b : (m, 3) array_like of float, optional
+        The second set's corners; give both or neither.
     n_threads : int, optional
         Numba threads; ``None`` keeps numba's setting.
 
     Returns
     -------
     pairs : (k, 2) ndarray of int64
-        Each overlapping pair once with ``i < j``; row order is unspecified.
+        One set: each overlapping pair once with ``i < j``; row order is
+        unspecified.  Two sets: ``(a, b)`` with ``a`` a row of the first set
+        and ``b`` a row of the second, rows sorted (by ``a``, then ``b``).
 
     Raises
     ------
     ValueError
-        NaN or inf, wrong shapes, mismatched lengths, or ``lower > upper``.
+        NaN or inf, wrong shapes, mismatched lengths, ``lower > upper`` (or
+        ``lower_b > upper_b``), or only one of ``lower_b`` and ``upper_b``.
     TypeError
         Non-numeric input or a non-integer ``n_threads``.
 
@@ -872,5 +934,21 @@ def box_overlaps(lower, upper, *, n_threads=None):
     >>> lower = np.array([[0.0, 0, 0], [0.5, 0.5, 0.5], [2.0, 2, 2]])
     >>> box_overlaps(lower, lower + 1.0)
     array([[0, 1]])
+    >>> box_overlaps(lower, lower + 1.0, [[1.0, 1, 1]], [[2.0, 2, 2]])
+    array([[0, 0],
+           [1, 0],
+           [2, 0]])
     """
-    return SweepAndPrune(n_threads=n_threads).update(lower, upper)
+    if lower_b is None and upper_b is None:
+        return SweepAndPrune(n_threads=n_threads).update(lower, upper)
+    if lower_b is None or upper_b is None:
+        given, missing = ("lower_b", "upper_b") if upper_b is None else ("upper_b", "lower_b")
+        raise ValueError(f"{given} was given without {missing}; give both corners of the "
+                         "second set, or neither for pairs within one set")
+    threads = check_n_threads(n_threads)
+    lower, upper = _check_boxes(lower, upper)
+    lower_b, upper_b = _check_boxes(lower_b, upper_b, ("lower_b", "upper_b"))
+    if threads is None and len(lower) + len(lower_b) < _PARALLEL_MIN:
+        threads = 1
+    with num_threads(threads) as threads:
+        return _cross_overlaps(lower, upper, lower_b, upper_b, threads)

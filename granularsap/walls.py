@@ -1,0 +1,894 @@
+"""Contacts between spheres and walls: planes and triangle meshes.
+
+:class:`WallSearch` finds, for a frame of spheres, every sphere in contact
+with a list of walls (:class:`Plane` half-spaces and :class:`TriangleMesh`
+surfaces), with the distance from the centre to the closest point of the
+wall, that point and the contact normal; optionally, which contact of the
+previous call each one continues (contact identity, for tangential history).
+
+Algorithm (docs/walls.md):
+
+* broad phase through the box engine: the boxes ``centre +- (r + skin)`` of
+  the spheres against the boxes of the triangles (the cross-set query of
+  :func:`granularsap.box_overlaps`);
+* narrow phase: the exact closest point of each candidate triangle
+  (Ericson's ``ClosestPtPointTriangle``, ``kernels/triangles.py``), which
+  also tells the feature it lies on: the face, an edge or a vertex;
+* de-duplication for one sphere and one mesh as DEM codes do it: a face
+  contact always counts; an edge contact counts when no triangle having that
+  edge has a face contact with the sphere, once per edge; a vertex contact
+  counts when no triangle having that vertex has a face or an edge contact
+  with the sphere, once per vertex.  So a sphere resting on a flat tiling
+  gets one contact wherever it rests, on a face, across an edge or over a
+  vertex shared by any number of triangles.
+
+Periodic cells: spheres are wrapped into the cell along periodic axes, and
+every triangle that comes within reach of the cell gets the images (shifted
+by cell vectors) that do, so a mesh crossing a periodic face is found from
+both sides; points and normals are reported in the frame of each sphere's
+given position.  Vertices that coincide modulo the periodic cell vectors are
+one vertex for the de-duplication (a floor tiling a periodic cell has no
+seam).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from typing import NamedTuple
+
+import numpy as np
+
+from ._numba import num_threads
+from ._validate import as_coords, as_scalar, as_vector, check_n_threads
+from .api import _cross_overlaps
+from .cell import Cell
+from .kernels import triangles as _tri
+
+__all__ = ["Plane", "TriangleMesh", "WallContacts", "WallSearch"]
+
+FACE, EDGE, VERTEX = 0, 1, 2
+#: candidates below which one thread does the work unless n_threads asks otherwise
+_PARALLEL_MIN = 32768
+#: relative guard of the broad phase's boxes against rounding (the exact
+#: distance test decides)
+_GUARD = 1e-12
+#: resolution of the periodic identification of vertices, in cell lengths
+_PERIODIC_TOL = 2.0 ** -33
+#: a triangle whose doubled area is below this fraction of its longest edge
+#: squared is degenerate (collinear or repeated vertices)
+_DEGENERATE = 1e-12
+
+
+def _vector3(x, name, *, unit=False):
+    arr = np.asarray(x)
+    if arr.dtype.kind not in "fiu":
+        raise TypeError(f"{name} must be 3 real numbers, got dtype {arr.dtype}")
+    if arr.shape != (3,):
+        raise ValueError(f"{name} must have shape (3,), got {arr.shape}")
+    arr = np.array(arr, dtype=np.float64)
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+    if unit:
+        norm = float(np.sqrt(arr @ arr))
+        if not norm > 0 or not np.isfinite(norm):
+            raise ValueError(f"{name} must be a non-zero vector, got {arr.tolist()}")
+        arr = arr / norm
+    arr.flags.writeable = False
+    return arr
+
+
+class Plane:
+    """A flat wall: the half-space behind a plane.
+
+    The solid is the side the normal points away from; spheres live on the
+    side it points to.  A sphere is in contact when the signed distance of its
+    centre to the plane, ``(x - point) . normal``, is at most ``r + skin``.
+    Spheres whose centre is *behind* the plane (negative distance: a sphere
+    pushed through it) still count, with that negative distance, so that an
+    overlap ``r - distance`` keeps pushing them out instead of losing them.
+
+    Parameters
+    ----------
+    point : (3,) array_like of float
+        Any point of the plane.
+    normal : (3,) array_like of float
+        Direction of the open side; normalised to unit length.
+
+    Raises
+    ------
+    ValueError
+        Wrong shape, NaN or inf, or a zero normal.
+
+    Notes
+    -----
+    Move a plane between calls by setting :attr:`point` or :attr:`normal`.
+    In a periodic cell the normal must be perpendicular to every periodic
+    cell vector (a floor under x-y periodic walls), else
+    :meth:`WallSearch.update` refuses it.
+
+    Examples
+    --------
+    >>> from granularsap import Plane
+    >>> floor = Plane(point=[0, 0, 0], normal=[0, 0, 2])
+    >>> floor.normal.tolist()
+    [0.0, 0.0, 1.0]
+    """
+
+    def __init__(self, point, normal):
+        self.point = point
+        self.normal = normal
+
+    @property
+    def point(self):
+        """(3,) float64, read-only: a point of the plane."""
+        return self._point
+
+    @point.setter
+    def point(self, value):
+        self._point = _vector3(value, "point")
+
+    @property
+    def normal(self):
+        """(3,) float64, read-only: the unit normal, towards the open side."""
+        return self._normal
+
+    @normal.setter
+    def normal(self, value):
+        self._normal = _vector3(value, "normal", unit=True)
+
+    def __repr__(self):
+        return f"Plane(point={self._point.tolist()}, normal={self._normal.tolist()})"
+
+
+def _as_faces(faces, nv):
+    arr = np.asarray(faces)
+    if arr.dtype.kind not in "iu":
+        if arr.dtype.kind == "f" and arr.size and np.isfinite(arr).all() and np.all(
+                arr == np.round(arr)):
+            arr = arr.astype(np.int64)
+        elif arr.size == 0 and arr.dtype.kind == "f":
+            arr = arr.astype(np.int64)
+        else:
+            raise TypeError(f"faces must be integers (vertex indices), got dtype {arr.dtype}")
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"faces must have shape (f, 3) (three vertex indices per triangle), "
+                         f"got {arr.shape}")
+    if arr.shape[0] == 0:
+        raise ValueError("faces must not be empty: a mesh needs at least one triangle")
+    arr = np.ascontiguousarray(arr, dtype=np.int64)
+    bad = (arr < 0) | (arr >= nv)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise ValueError(f"faces must index the {nv} vertices (0 to {nv - 1}), got "
+                         f"faces[{int(row)}, {int(col)}] = {int(arr[row, col])}")
+    return arr
+
+
+def _check_degenerate(tri, name):
+    """ValueError naming the first zero-area triangle of ``tri`` (f, 3, 3)."""
+    ab = tri[:, 1] - tri[:, 0]
+    ac = tri[:, 2] - tri[:, 0]
+    bc = tri[:, 2] - tri[:, 1]
+    area2 = np.linalg.norm(np.cross(ab, ac), axis=1)
+    longest = np.maximum(np.maximum((ab * ab).sum(1), (ac * ac).sum(1)), (bc * bc).sum(1))
+    bad = ~(area2 > _DEGENERATE * longest)
+    if bad.any():
+        t = int(np.flatnonzero(bad)[0])
+        raise ValueError(
+            f"{name}: triangle {t} is degenerate (zero area: repeated or collinear vertices "
+            f"{tri[t].tolist()}); remove it, or build the mesh with "
+            "TriangleMesh(..., degenerate='drop')")
+
+
+def _adjacency(vid, faces):
+    """Vertex ids of each face's corners, the unique edges (pairs of vertex
+    ids, smaller first) and each face's edge ids (AB, BC, CA)."""
+    cv = vid[faces]
+    f = len(faces)
+    ends = np.concatenate((cv[:, [0, 1]], cv[:, [1, 2]], cv[:, [2, 0]]))
+    ends.sort(axis=1)
+    edges, inverse = np.unique(ends, axis=0, return_inverse=True)
+    face_edges = np.ascontiguousarray(inverse.reshape(3, f).T, dtype=np.int64)
+    return np.ascontiguousarray(cv), np.ascontiguousarray(edges, dtype=np.int64), face_edges
+
+
+class TriangleMesh:
+    """A wall made of triangles (two-sided: spheres may touch either side).
+
+    Parameters
+    ----------
+    vertices : (v, 3) array_like of float
+        Vertex positions.
+    faces : (f, 3) array_like of int
+        Three vertex indices per triangle.
+    degenerate : {"raise", "drop"}
+        What to do with zero-area triangles (repeated or collinear vertices,
+        which have no normal): refuse them (default) or leave them out (the
+        faces kept are :attr:`faces`, and contacts report rows of it).
+
+    Raises
+    ------
+    ValueError
+        Wrong shapes, NaN or inf, indices out of range, no faces, or a
+        degenerate triangle with ``degenerate="raise"``.
+    TypeError
+        Non-numeric vertices or non-integer faces.
+
+    Notes
+    -----
+    Vertices with exactly the same coordinates are one vertex for the
+    de-duplication of edge and vertex contacts (an STL file repeats every
+    vertex once per triangle); the vertex and edge adjacency is built once,
+    here.  :attr:`vertex_ids` maps each vertex to its representative (the
+    lowest index with those coordinates) and :attr:`edges` lists the edges
+    as pairs of representatives.
+
+    Move the mesh between calls by setting :attr:`vertices` (same topology),
+    or for one call with ``WallSearch.update(..., vertices=...)``.
+
+    Examples
+    --------
+    >>> from granularsap import TriangleMesh
+    >>> square = TriangleMesh([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]],
+    ...                       [[0, 1, 2], [0, 2, 3]])
+    >>> square.edges.tolist()       # the diagonal 0-2 is shared
+    [[0, 1], [0, 2], [0, 3], [1, 2], [2, 3]]
+    """
+
+    def __init__(self, vertices, faces, *, degenerate="raise"):
+        if degenerate not in ("raise", "drop"):
+            raise ValueError(f"degenerate must be 'raise' or 'drop', got {degenerate!r}")
+        verts = as_coords(vertices, "vertices", allow_empty=False)
+        faces = _as_faces(faces, len(verts))
+        if degenerate == "drop":
+            tri = verts[faces]
+            ab = tri[:, 1] - tri[:, 0]
+            ac = tri[:, 2] - tri[:, 0]
+            bc = tri[:, 2] - tri[:, 1]
+            area2 = np.linalg.norm(np.cross(ab, ac), axis=1)
+            longest = np.maximum(np.maximum((ab * ab).sum(1), (ac * ac).sum(1)),
+                                 (bc * bc).sum(1))
+            faces = np.ascontiguousarray(faces[area2 > _DEGENERATE * longest])
+            if len(faces) == 0:
+                raise ValueError("faces: every triangle is degenerate (zero area)")
+        _check_degenerate(verts[faces], "faces")
+        verts.flags.writeable = False
+        faces.flags.writeable = False
+        self._vertices = verts
+        self._faces = faces
+        # exact duplicates are one vertex: the lowest index with those coordinates
+        _, first, inverse = np.unique(verts + 0.0, axis=0, return_index=True,
+                                      return_inverse=True)
+        self._vid = np.ascontiguousarray(first[inverse.reshape(-1)], dtype=np.int64)
+        self._vid.flags.writeable = False
+        self._corners, self._edges, self._face_edges = _adjacency(self._vid, faces)
+        for a in (self._corners, self._edges, self._face_edges):
+            a.flags.writeable = False
+        self._periodic = {}
+
+    @classmethod
+    def read(cls, path, *, file_format=None, degenerate="raise"):
+        """A mesh from a file: STL (binary or ASCII), OBJ, VTK, VTU, PLY, OFF, ...
+
+        Read with meshio (optional dependency: ``pip install
+        "granularsap[mesh]"``); every triangle cell block of the file is
+        used.  Vertices an STL file repeats per triangle are merged by
+        meshio, and exact duplicates left by any format are one vertex here.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The mesh file.
+        file_format : str, optional
+            meshio's format name when the extension does not tell it
+            (``"stl"``, ``"obj"``, ``"vtk"``, ...).
+        degenerate : {"raise", "drop"}
+            As for :class:`TriangleMesh`.
+
+        Returns
+        -------
+        TriangleMesh
+
+        Raises
+        ------
+        ImportError
+            meshio is not installed.
+        ValueError
+            The file has no triangles, or a degenerate one (``degenerate="raise"``).
+        FileNotFoundError
+            No file at ``path``.
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np, meshio
+        >>> from granularsap import TriangleMesh
+        >>> path = os.path.join(tempfile.mkdtemp(), "triangle.stl")
+        >>> pts = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+        >>> meshio.write(path, meshio.Mesh(pts, [("triangle", np.array([[0, 1, 2]]))]))
+        >>> TriangleMesh.read(path).faces.tolist()
+        [[0, 1, 2]]
+        """
+        try:
+            import meshio
+        except ImportError as exc:  # pragma: no cover - meshio is in the test extra
+            raise ImportError("TriangleMesh.read needs meshio; install it with "
+                              "pip install 'granularsap[mesh]' (or pip install meshio)") from exc
+        path = os.fspath(path)
+        if not os.path.exists(path):
+            raise FileNotFoundError(f"no mesh file at {path!r}")
+        with warnings.catch_warnings():
+            # meshio's binary-STL size check overflows a uint32 on ASCII files
+            # (NumPy 2 warns; the check is then false, as it should be)
+            warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning)
+            mesh = meshio.read(path, file_format=file_format)
+        blocks = [np.asarray(c.data) for c in mesh.cells if c.type == "triangle"]
+        if not blocks:
+            kinds = sorted({c.type for c in mesh.cells})
+            raise ValueError(f"{path!r} has no triangles (cell types: {kinds or 'none'}); "
+                             "a TriangleMesh needs triangle cells")
+        return cls(np.asarray(mesh.points)[:, :3], np.concatenate(blocks),
+                   degenerate=degenerate)
+
+    # -------------------------------------------------------------- properties
+    @property
+    def vertices(self):
+        """(v, 3) float64, read-only: vertex positions; set it to move the mesh."""
+        return self._vertices
+
+    @vertices.setter
+    def vertices(self, value):
+        self._vertices = self._checked_vertices(value, "vertices")
+
+    def _checked_vertices(self, value, name):
+        verts = as_coords(value, name)
+        if verts.shape != self._vertices.shape:
+            raise ValueError(f"{name} must have the mesh's shape {self._vertices.shape} (same "
+                             f"vertices, moved), got {verts.shape}")
+        _check_degenerate(verts[self._faces], name)
+        verts.flags.writeable = False
+        return verts
+
+    @property
+    def faces(self):
+        """(f, 3) int64, read-only: vertex indices of each triangle."""
+        return self._faces
+
+    @property
+    def vertex_ids(self):
+        """(v,) int64, read-only: each vertex's representative (lowest index with
+        the same coordinates)."""
+        return self._vid
+
+    @property
+    def edges(self):
+        """(e, 2) int64, read-only: the unique edges as pairs of representative
+        vertex ids, smaller first, sorted."""
+        return self._edges
+
+    @property
+    def face_edges(self):
+        """(f, 3) int64, read-only: rows of :attr:`edges` of each triangle's edges
+        AB, BC and CA."""
+        return self._face_edges
+
+    def __len__(self):
+        return len(self._faces)
+
+    def __repr__(self):
+        return f"TriangleMesh({len(self._vertices)} vertices, {len(self._faces)} faces)"
+
+    def _periodic_adjacency(self, verts, cell):
+        """Adjacency with vertices that coincide modulo the periodic cell vectors
+        identified (cached per cell)."""
+        key = hash(cell)
+        got = self._periodic.get(key)
+        if got is not None and got[0] == cell:
+            return got[1]
+        s = cell.fractional(verts)
+        pbc = cell.pbc
+        q = s.copy()
+        q[:, pbc] = np.round(np.mod(s[:, pbc], 1.0) / _PERIODIC_TOL)
+        q[:, pbc] = np.mod(q[:, pbc], 1.0 / _PERIODIC_TOL)
+        # exact duplicates stay one vertex whatever their rounding
+        q = q[self._vid]
+        _, first, inverse = np.unique(q + 0.0, axis=0, return_index=True, return_inverse=True)
+        vid = np.ascontiguousarray(self._vid[first[inverse.reshape(-1)]], dtype=np.int64)
+        adj = _adjacency(vid, self._faces)
+        self._periodic[key] = (cell, adj)
+        return adj
+
+
+class WallContacts(NamedTuple):
+    """Sphere-wall contacts of one :meth:`WallSearch.update` call (k rows).
+
+    Attributes
+    ----------
+    sphere : (k,) int64
+        Row of the sphere in the positions given.
+    wall : (k,) int64
+        Index of the wall in the :class:`WallSearch`'s list.
+    element : (k,) int64
+        Triangle (row of the mesh's faces) for a mesh, 0 for a plane.
+    feature : (k,) int64
+        0 face, 1 edge, 2 vertex (a plane's contacts are faces).
+    distance : (k,) float64
+        From the centre to the closest point (signed for a plane: negative
+        behind it).  Contact means ``distance <= r + skin``.
+    normal : (k, 3) float64
+        Unit vector from the closest point towards the centre (a plane's
+        normal; a triangle's normal when the centre lies on it).
+    point : (k, 3) float64
+        The closest point of the wall, in the frame of the sphere's given
+        position (its periodic image nearest to it).
+    """
+
+    sphere: np.ndarray
+    wall: np.ndarray
+    element: np.ndarray
+    feature: np.ndarray
+    distance: np.ndarray
+    normal: np.ndarray
+    point: np.ndarray
+
+
+def _empty_contacts():
+    e = np.empty(0, np.int64)
+    return WallContacts(e, e.copy(), e.copy(), e.copy(), np.empty(0), np.empty((0, 3)),
+                        np.empty((0, 3)))
+
+
+#: columns of an identity key: sphere (id or row), wall, feature kind, feature
+#: id (triangle, or smaller vertex of an edge, or vertex), second vertex of an
+#: edge (else -1), and the rank among equal keys of one call (periodic images)
+_KEY_COLUMNS = 6
+
+
+def _match(prev_keys, keys):
+    """Row of each key in ``prev_keys`` (or -1), and the rows of ``prev_keys`` not
+    matched.  Keys are unique within each array."""
+    kp, kc = len(prev_keys), len(keys)
+    previous = np.full(kc, -1, np.int64)
+    if kp == 0 or kc == 0:
+        return previous, np.arange(kp, dtype=np.int64)
+    both = np.concatenate((prev_keys, keys))
+    src = np.concatenate((np.zeros(kp, np.int64), np.ones(kc, np.int64)))
+    row = np.concatenate((np.arange(kp), np.arange(kc)))
+    order = np.lexsort((src,) + tuple(both[:, c] for c in reversed(range(_KEY_COLUMNS))))
+    s = both[order]
+    same = np.flatnonzero((s[1:] == s[:-1]).all(axis=1))
+    previous[row[order[same + 1]]] = row[order[same]]
+    matched = np.zeros(kp, bool)
+    matched[row[order[same]]] = True
+    return previous, np.flatnonzero(~matched).astype(np.int64)
+
+
+def _as_ids(ids, n):
+    arr = np.asarray(ids)
+    if arr.dtype.kind not in "iu":
+        raise TypeError(f"ids must be integers, got dtype {arr.dtype}")
+    if arr.shape != (n,):
+        raise ValueError(f"ids must have shape ({n},) (one per sphere), got {arr.shape}")
+    arr = np.ascontiguousarray(arr, dtype=np.int64)
+    if n > 1:
+        srt = np.sort(arr)
+        dup = np.flatnonzero(srt[1:] == srt[:-1])
+        if len(dup):
+            raise ValueError(f"ids must be unique, got {int(srt[dup[0]])} more than once")
+    return arr
+
+
+class WallSearch:
+    """Contacts between spheres and a list of walls, frame after frame.
+
+    Parameters
+    ----------
+    walls : sequence of Plane and TriangleMesh
+        The walls; contacts name them by their index in this list.
+    skin : float
+        Contact when ``distance <= r + skin`` (as ``ContactSearch``'s skin).
+    identity : bool
+        Keep, after each call, the row of each contact in the previous call's
+        result (:attr:`previous_rows`), the rows that ended
+        (:attr:`ended_rows`) and :meth:`carry` for history arrays.
+    n_threads : int, optional
+        Numba threads for each call; ``None`` uses numba's setting (one
+        thread for small frames).  Results do not depend on it.
+
+    Raises
+    ------
+    TypeError
+        A wall that is neither a Plane nor a TriangleMesh.
+    ValueError
+        No walls, or a negative skin.
+
+    Notes
+    -----
+    Identity: a contact continues when it has the same sphere (by ``ids``,
+    by row without), the same wall and the same feature: the triangle for a
+    face contact, the edge (its two vertices) for an edge contact, the
+    vertex for a vertex contact, so a sphere rolling from one triangle onto
+    the next starts a new contact (as in LAMMPS's and LIGGGHTS's mesh walls).
+    A sphere wrapped back into the cell by the caller keeps its contacts
+    (under the minimum image a feature touches a sphere once); when a sphere
+    touches two periodic images of one feature (a reach over half the cell),
+    they are told apart by their rank in the order of their lattice shifts
+    relative to the sphere's position.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from granularsap import Plane, TriangleMesh, WallSearch
+    >>> ramp = TriangleMesh([[0, 0, 0], [4, 0, 0], [0, 4, 0], [4, 4, 0]],
+    ...                     [[0, 1, 2], [1, 3, 2]])
+    >>> walls = WallSearch([Plane([0, 0, -1], [0, 0, 1]), ramp], identity=True)
+    >>> c = walls.update([[2.0, 2.0, 0.5], [1.0, 1.0, 3.0]], [0.6, 0.5])
+    >>> c.sphere.tolist(), c.wall.tolist(), c.feature.tolist()  # over the shared edge
+    ([0], [1], [1])
+    >>> c.distance.tolist(), c.normal.tolist()
+    ([0.5], [[0.0, 0.0, 1.0]])
+    >>> walls.update([[2.5, 2.0, 0.5], [1.0, 1.0, 3.0]], [0.6, 0.5]).element.tolist()
+    [1]
+    >>> walls.previous_rows.tolist(), walls.ended_rows.tolist()
+    ([-1], [0])
+    """
+
+    def __init__(self, walls, *, skin=0.0, identity=False, n_threads=None):
+        if isinstance(walls, (Plane, TriangleMesh)):
+            walls = [walls]
+        walls = list(walls)
+        if not walls:
+            raise ValueError("walls must hold at least one Plane or TriangleMesh")
+        for i, w in enumerate(walls):
+            if not isinstance(w, (Plane, TriangleMesh)):
+                raise TypeError(f"walls[{i}] must be a Plane or a TriangleMesh, got "
+                                f"{type(w).__name__}")
+        self.walls = walls
+        self.skin = as_scalar(skin, "skin")
+        if not isinstance(identity, (bool, np.bool_)):
+            raise TypeError(f"identity must be True or False, got {type(identity).__name__}")
+        self.identity = bool(identity)
+        self.n_threads = check_n_threads(n_threads)
+        self._keys = None
+        self._previous_rows = None
+        self._ended_rows = None
+        self._count = 0
+        #: per call: spheres, candidates tested, contacts, threads
+        self.stats = {}
+
+    # ------------------------------------------------------------ identity
+    @property
+    def previous_rows(self):
+        """(k,) int64: row of each contact of the last call in the call before
+        it, or -1 for a new contact (``identity=True``)."""
+        self._need_identity("previous_rows")
+        return self._previous_rows
+
+    @property
+    def ended_rows(self):
+        """(m,) int64: rows of the call before the last whose contacts did not
+        continue (``identity=True``)."""
+        self._need_identity("ended_rows")
+        return self._ended_rows
+
+    def carry(self, h_prev, fill=0.0):
+        """A history array moved from the previous call's rows to the last's.
+
+        Parameters
+        ----------
+        h_prev : (k_prev, ...) array_like
+            One row per contact of the previous call.
+        fill : scalar
+            Value of the rows of new contacts.
+
+        Returns
+        -------
+        h : (k, ...) ndarray
+            ``h_prev[previous_rows]``, ``fill`` where ``previous_rows == -1``.
+
+        Raises
+        ------
+        ValueError
+            ``h_prev`` does not have one row per contact of the previous call.
+        """
+        self._need_identity("carry")
+        h_prev = np.asarray(h_prev)
+        if h_prev.ndim == 0 or h_prev.shape[0] != self._prev_count:
+            got = h_prev.shape[0] if h_prev.ndim else "a scalar"
+            raise ValueError(f"h_prev must have one row per contact of the previous call "
+                             f"({self._prev_count}), got {got}")
+        prev = self._previous_rows
+        out = np.full((len(prev),) + h_prev.shape[1:], fill, dtype=np.result_type(
+            h_prev.dtype, np.min_scalar_type(fill) if np.isscalar(fill) else h_prev.dtype))
+        live = prev >= 0
+        out[live] = h_prev[prev[live]]
+        return out
+
+    def _need_identity(self, name):
+        if not self.identity:
+            raise ValueError(f"{name} needs WallSearch(..., identity=True)")
+        if self._previous_rows is None:
+            raise ValueError(f"{name} is known after the first update()")
+
+    # ------------------------------------------------------------ update
+    def update(self, positions, radii, box=None, *, pbc=None, ids=None, vertices=None):
+        """Sphere-wall contacts of one frame.
+
+        Parameters
+        ----------
+        positions : (n, 3) array_like of float
+            Sphere centres.
+        radii : float or (n,) array_like of float
+            Sphere radii (non-negative).
+        box : None, (6,) or (3, 3) array_like of float, or Cell, optional
+            The cell; None for open boundaries.
+        pbc : bool or (3,) sequence of bool, optional
+            Periodicity (default: the box's own).
+        ids : (n,) array_like of int, optional
+            Unique sphere ids for contact identity (rows otherwise), so that
+            insertions and deletions keep the other spheres' contacts.
+        vertices : (v, 3) array_like, or sequence with one entry per wall, optional
+            Vertex positions of the meshes for this call (same topology): one
+            array when the search has a single mesh, else a list with an array
+            or None (unchanged) per wall.
+
+        Returns
+        -------
+        WallContacts
+            Rows sorted by sphere, wall, element and feature; fresh arrays.
+
+        Raises
+        ------
+        ValueError
+            Wrong shapes, NaN or inf, negative radii, non-unique ids, a plane not
+            perpendicular to the periodic axes, moved vertices of another shape
+            or making a degenerate triangle.
+        """
+        x = as_coords(positions, "positions")
+        n = len(x)
+        r = as_vector(radii, "radii", n)
+        cell = Cell.coerce(box, pbc=pbc, name="box")
+        if cell is not None and not cell.any_periodic:
+            cell = None
+        sphere_key = np.arange(n, dtype=np.int64) if ids is None else _as_ids(ids, n)
+        verts = self._vertices_for(vertices)
+        threads = self.n_threads
+        h = r + self.skin
+        if cell is not None:
+            xw = cell.wrap(x)
+            delta = x - xw  # given minus wrapped position (whole cell vectors)
+        else:
+            xw, delta = x, None
+        parts = []
+        tested = 0
+        for w, wall in enumerate(self.walls):
+            if isinstance(wall, Plane):
+                parts.append(self._plane(w, wall, x, h, cell))
+                tested += n
+            else:
+                got, cand = self._mesh(w, wall, verts[w], xw, h, cell, delta, threads)
+                parts.append(got)
+                tested += cand
+        cols = [np.concatenate([p[c] for p in parts]) for c in range(9)]
+        sphere, wall_i, element, feature, fid2, distance, normal, point, rel = cols
+        fid, fid2 = fid2[:, 0], fid2[:, 1]
+        order = np.lexsort((rel[:, 2], rel[:, 1], rel[:, 0], fid2, fid, feature, element, wall_i,
+                            sphere))
+        sphere, wall_i, element, feature = (a[order] for a in (sphere, wall_i, element, feature))
+        fid, fid2, distance = fid[order], fid2[order], distance[order]
+        normal, point = normal[order], point[order]
+        result = WallContacts(sphere, wall_i, element, feature, distance, normal, point)
+        self.stats = {"spheres": n, "candidates_tested": int(tested), "contacts": len(sphere)}
+        if self.identity:
+            self._identify(sphere_key[sphere], wall_i, feature, fid, fid2)
+        return result
+
+    def _vertices_for(self, vertices):
+        """The vertices of each mesh for this call (None for planes)."""
+        current = [w.vertices if isinstance(w, TriangleMesh) else None for w in self.walls]
+        if vertices is None:
+            return current
+        meshes = [i for i, w in enumerate(self.walls) if isinstance(w, TriangleMesh)]
+        if isinstance(vertices, (list, tuple)) and len(vertices) == len(self.walls) and (
+                len(self.walls) != 1 or np.ndim(vertices) != 2 or len(meshes) != 1
+                or any(v is None for v in vertices)):
+            given = list(vertices)
+        elif len(meshes) == 1:
+            given = [None] * len(self.walls)
+            given[meshes[0]] = vertices
+        else:
+            raise ValueError(f"vertices must be a sequence with one entry per wall "
+                             f"({len(self.walls)}: an array or None each) when the search "
+                             f"has {len(meshes)} meshes")
+        for i, v in enumerate(given):
+            if v is None:
+                continue
+            if i not in meshes:
+                raise ValueError(f"vertices[{i}] is given for a Plane; use None for planes "
+                                 "(move a plane by setting its point or normal)")
+            current[i] = self.walls[i]._checked_vertices(v, f"vertices[{i}]")
+        return current
+
+    def _plane(self, w, plane, x, h, cell):
+        n = plane.normal
+        if cell is not None:
+            m = cell.matrix[cell.pbc]
+            lengths = np.linalg.norm(m, axis=1)
+            off = np.abs(m @ n) > 1e-12 * lengths
+            if off.any():
+                axis = int(np.flatnonzero(cell.pbc)[np.flatnonzero(off)[0]])
+                raise ValueError(
+                    f"walls[{w}] is a Plane with normal {n.tolist()} that is not perpendicular "
+                    f"to periodic cell vector {axis}; a half-space wall needs the periodic "
+                    "axes parallel to it (make that axis open with pbc, or use a mesh)")
+        d = (x - plane.point) @ n
+        hit = np.flatnonzero(d <= h)
+        k = len(hit)
+        zeros = np.zeros(k, np.int64)
+        fid = np.zeros((k, 2), np.int64)
+        fid[:, 1] = -1
+        return (hit.astype(np.int64), np.full(k, w, np.int64), zeros, zeros.copy(), fid,
+                d[hit], np.broadcast_to(n, (k, 3)).copy(), x[hit] - d[hit, None] * n,
+                np.zeros((k, 3), np.int64))
+
+    def _images(self, tri, cell, hmax):
+        """Triangle rows and integer lattice shifts of every image within reach of
+        the cell (the triangle itself with a zero shift in an open cell)."""
+        f = len(tri)
+        if cell is None:
+            return np.arange(f, dtype=np.int64), np.zeros((f, 3), np.int64)
+        s = cell.fractional(tri.reshape(-1, 3)).reshape(f, 3, 3)
+        lo, hi = s.min(axis=1), s.max(axis=1)
+        widths = cell.perpendicular_widths
+        ranges = []
+        for c in range(3):
+            if not cell.pbc[c]:
+                ranges.append((np.zeros(f, np.int64), np.zeros(f, np.int64)))
+                continue
+            reach = hmax / widths[c] * (1.0 + 1e-9) + 1e-9
+            a = np.ceil(-hi[:, c] - reach).astype(np.int64)
+            b = np.floor(1.0 - lo[:, c] + reach).astype(np.int64)
+            ranges.append((a, np.maximum(b, a - 1)))
+        counts = np.ones(f, np.int64)
+        for a, b in ranges:
+            counts *= b - a + 1
+        rows = np.repeat(np.arange(f, dtype=np.int64), counts)
+        # the image's position within its triangle's block, decoded axis by axis
+        local = np.arange(len(rows), dtype=np.int64) - np.repeat(np.cumsum(counts) - counts,
+                                                                  counts)
+        shifts = np.zeros((len(rows), 3), np.int64)
+        for c in range(3):
+            a, b = ranges[c]
+            span = (b - a + 1)[rows]
+            shifts[:, c] = a[rows] + local % span
+            local //= span
+        return rows, shifts
+
+    def _mesh(self, w, mesh, verts, xw, h, cell, delta, threads):
+        faces = mesh.faces
+        tri = verts[faces]  # (f, 3, 3)
+        n = len(xw)
+        if cell is not None:
+            corners, _, face_edges = mesh._periodic_adjacency(verts, cell)
+        else:
+            corners, face_edges = mesh._corners, mesh._face_edges
+        hmax = float(h.max()) if n else 0.0
+        rows, shifts = self._images(tri, cell, hmax)
+        itri = tri[rows]
+        if cell is not None:
+            itri = itri + (shifts.astype(np.float64) @ cell.full_matrix)[:, None, :]
+        itri = np.ascontiguousarray(itri)
+        if n == 0 or len(itri) == 0:
+            return self._mesh_rows(w, np.empty(0, np.int64), np.empty(0, np.int64),
+                                   np.empty(0, np.int64), np.empty((0, 3), np.int64),
+                                   np.empty(0), np.empty((0, 3)), np.empty((0, 3)),
+                                   np.empty((0, 3), np.int64)), 0
+        scale = max(float(np.abs(xw).max()), float(np.abs(itri).max()))
+        pad = h + _GUARD * (np.abs(h) + scale)
+        tlo = itri.min(axis=1)
+        thi = itri.max(axis=1)
+        if threads is None and n + len(itri) < _PARALLEL_MIN:
+            threads = 1
+        with num_threads(threads) as used:
+            cand = _cross_overlaps(xw - pad[:, None], xw + pad[:, None], tlo, thi, used)
+            k = len(cand)
+            dist = np.empty(k)
+            point = np.empty((k, 3))
+            region = np.empty(k, np.int64)
+            if k:
+                kern = _tri if used > 1 else _tri.serial
+                kern.sphere_triangles(cand, xw, itri, dist, point, region)
+        hit = np.flatnonzero(dist <= h[cand[:, 0]])
+        s, img = cand[hit, 0], cand[hit, 1]
+        dist, point, region = dist[hit], point[hit], region[hit]
+        t = rows[img]
+        kind = np.where(region == _tri.FACE, FACE, np.where(region <= _tri.EDGE_CA, EDGE, VERTEX))
+        edge = face_edges[t, np.clip(region - 1, 0, 2)]
+        vert = corners[t, np.clip(region - 4, 0, 2)]
+        fid = np.where(kind == FACE, t, np.where(kind == EDGE, edge, vert))
+        keep = self._dedup(s, t, img, kind, fid, corners, face_edges, len(mesh.edges) + 1)
+        s, t, img, kind, fid = s[keep], t[keep], img[keep], kind[keep], fid[keep]
+        dist, point = dist[keep], point[keep]
+        centre = xw[s]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            normal = (centre - point) / dist[:, None]
+        flat = ~(dist > 0)
+        if flat.any():
+            tr = itri[img[flat]]
+            nrm = np.cross(tr[:, 1] - tr[:, 0], tr[:, 2] - tr[:, 0])
+            normal[flat] = nrm / np.linalg.norm(nrm, axis=1)[:, None]
+        if delta is not None:
+            point = point + delta[s]
+        edges = mesh._edges if cell is None else mesh._periodic_adjacency(verts, cell)[1]
+        fid2 = np.full((len(s), 2), -1, np.int64)
+        fid2[:, 0] = fid
+        is_edge = kind == EDGE
+        fid2[is_edge] = edges[fid[is_edge]]
+        rel = shifts[img]
+        if cell is not None and len(s):
+            # the image's shift relative to the sphere's given position
+            rel = rel + np.rint(cell.fractional(delta[s] + cell.origin)).astype(np.int64)
+        return self._mesh_rows(w, s, t, kind, fid2, dist, normal, point, rel), len(cand)
+
+    @staticmethod
+    def _dedup(s, t, img, kind, fid, corners, face_edges, n_edges):
+        """Rows kept by the face / edge / vertex rule for one mesh (vectorised)."""
+        k = len(s)
+        if k == 0:
+            return np.empty(0, np.int64)
+        big = np.int64(max(int(corners.max()) + 1, n_edges, int(t.max()) + 1))
+        face = kind == FACE
+        edge = kind == EDGE
+        vertex = kind == VERTEX
+        # edges and vertices of triangles with a face contact; vertices of
+        # triangles with an edge contact
+        fs, ft = s[face], t[face]
+        blocked_e = (fs[:, None] * big + face_edges[ft]).ravel()
+        es, et = s[face | edge], t[face | edge]
+        blocked_v = (es[:, None] * big + corners[et]).ravel()
+        ok = face.copy()
+        key = s * big + fid
+        ok[edge] = ~np.isin(key[edge], blocked_e)
+        ok[vertex] = ~np.isin(key[vertex], blocked_v)
+        cand = np.flatnonzero(ok)
+        # edges and vertices once: the lowest triangle (then image) of each
+        once = cand[~face[cand]]
+        order = once[np.lexsort((img[once], t[once], key[once], kind[once]))]
+        first = np.ones(len(order), bool)
+        first[1:] = (kind[order][1:] != kind[order][:-1]) | (key[order][1:] != key[order][:-1])
+        return np.sort(np.concatenate((cand[face[cand]], order[first])))
+
+    @staticmethod
+    def _mesh_rows(w, s, t, kind, fid2, dist, normal, point, rel):
+        k = len(s)
+        return (s.astype(np.int64), np.full(k, w, np.int64), t.astype(np.int64),
+                kind.astype(np.int64), fid2, dist, normal, point, rel)
+
+    def _identify(self, skey, wall, feature, fid, fid2):
+        k = len(skey)
+        keys = np.empty((k, _KEY_COLUMNS), np.int64)
+        keys[:, 0] = skey
+        keys[:, 1] = wall
+        keys[:, 2] = feature
+        keys[:, 3] = fid
+        keys[:, 4] = fid2
+        keys[:, 5] = 0
+        if k > 1:
+            # rank among equal keys (a feature touched in two periodic images of the
+            # mesh), in the order of their relative lattice shifts (rows are sorted so)
+            order = np.lexsort(tuple(keys[:, c] for c in reversed(range(5))))
+            s = keys[order, :5]
+            same = np.concatenate(([False], (s[1:] == s[:-1]).all(axis=1)))
+            if same.any():
+                start = np.flatnonzero(~same)
+                run = np.repeat(start, np.diff(np.append(start, k)))
+                keys[order, 5] = np.arange(k) - run
+        if self._keys is None:
+            self._previous_rows = np.full(k, -1, np.int64)
+            self._ended_rows = np.empty(0, np.int64)
+            self._prev_count = 0
+        else:
+            self._previous_rows, self._ended_rows = _match(self._keys, keys)
+            self._prev_count = len(self._keys)
+        self._keys = keys
