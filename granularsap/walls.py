@@ -53,6 +53,9 @@ _PARALLEL_MIN = 32768
 #: relative guard of the broad phase's boxes against rounding (the exact
 #: distance test decides)
 _GUARD = 1e-12
+#: raw contacts of one sphere closer than this fraction of its reach r + skin
+#: are at the same distance (the de-duplication's ties)
+_TIE = 1e-9
 #: resolution of the periodic identification of vertices, in cell lengths
 _PERIODIC_TOL = 2.0 ** -33
 #: a triangle whose doubled area is below this fraction of its longest edge
@@ -781,7 +784,7 @@ class WallSearch:
         itri = np.ascontiguousarray(itri)
         if n == 0 or len(itri) == 0:
             return self._mesh_rows(w, np.empty(0, np.int64), np.empty(0, np.int64),
-                                   np.empty(0, np.int64), np.empty((0, 3), np.int64),
+                                   np.empty(0, np.int64), np.empty((0, 2), np.int64),
                                    np.empty(0), np.empty((0, 3)), np.empty((0, 3)),
                                    np.empty((0, 3), np.int64)), 0
         scale = max(float(np.abs(xw).max()), float(np.abs(itri).max()))
@@ -807,7 +810,7 @@ class WallSearch:
         edge = face_edges[t, np.clip(region - 1, 0, 2)]
         vert = corners[t, np.clip(region - 4, 0, 2)]
         fid = np.where(kind == FACE, t, np.where(kind == EDGE, edge, vert))
-        keep = self._dedup(s, t, img, kind, fid, corners, face_edges, len(mesh.edges) + 1)
+        keep = self._dedup(s, t, img, kind, fid, dist, _TIE * h[s], corners, face_edges)
         s, t, img, kind, fid = s[keep], t[keep], img[keep], kind[keep], fid[keep]
         dist, point = dist[keep], point[keep]
         centre = xw[s]
@@ -832,27 +835,48 @@ class WallSearch:
         return self._mesh_rows(w, s, t, kind, fid2, dist, normal, point, rel), len(cand)
 
     @staticmethod
-    def _dedup(s, t, img, kind, fid, corners, face_edges, n_edges):
-        """Rows kept by the face / edge / vertex rule for one mesh (vectorised)."""
+    def _dedup(s, t, img, kind, fid, dist, tol, corners, face_edges):
+        """Rows kept by the face / edge / vertex rule for one mesh (vectorised).
+
+        1. an edge or vertex contact is shadowed when another triangle having
+           that edge or vertex is closer to the centre by more than ``tol``
+           (its own closest point lies elsewhere: the point is no local
+           minimum of the distance over the surface);
+        2. a face contact counts; an edge contact counts when no triangle having
+           that edge has a face contact; a vertex contact counts when no
+           triangle having that vertex has a face or an edge contact;
+        3. each edge and each vertex once (its lowest triangle, then image).
+        """
         k = len(s)
         if k == 0:
             return np.empty(0, np.int64)
-        big = np.int64(max(int(corners.max()) + 1, n_edges, int(t.max()) + 1))
+        big = np.int64(max(int(corners.max()), int(face_edges.max()), int(t.max())) + 1)
         face = kind == FACE
         edge = kind == EDGE
         vertex = kind == VERTEX
-        # edges and vertices of triangles with a face contact; vertices of
-        # triangles with an edge contact
-        fs, ft = s[face], t[face]
-        blocked_e = (fs[:, None] * big + face_edges[ft]).ravel()
-        es, et = s[face | edge], t[face | edge]
-        blocked_v = (es[:, None] * big + corners[et]).ravel()
-        ok = face.copy()
         key = s * big + fid
-        ok[edge] = ~np.isin(key[edge], blocked_e)
-        ok[vertex] = ~np.isin(key[vertex], blocked_v)
+        ok = np.ones(k, bool)
+        # 1. the closest raw contact of any triangle around each edge and vertex
+        for sel, around in ((edge, face_edges), (vertex, corners)):
+            if not sel.any():
+                continue
+            near = (s[:, None] * big + around[t]).ravel()
+            d = np.repeat(dist, 3)
+            order = np.argsort(near, kind="stable")
+            near, d = near[order], d[order]
+            start = np.flatnonzero(np.concatenate(([True], near[1:] != near[:-1])))
+            closest = np.minimum.reduceat(d, start)
+            at = np.searchsorted(near[start], key[sel])
+            ok[sel] = closest[at] >= dist[sel] - tol[sel]
+        # 2. edges of triangles with a face contact; vertices of triangles with a
+        # face or an edge contact
+        blocked_e = (s[face][:, None] * big + face_edges[t[face]]).ravel()
+        touched = face | edge
+        blocked_v = (s[touched][:, None] * big + corners[t[touched]]).ravel()
+        ok[edge] &= ~np.isin(key[edge], blocked_e)
+        ok[vertex] &= ~np.isin(key[vertex], blocked_v)
         cand = np.flatnonzero(ok)
-        # edges and vertices once: the lowest triangle (then image) of each
+        # 3. edges and vertices once: the lowest triangle (then image) of each
         once = cand[~face[cand]]
         order = once[np.lexsort((img[once], t[once], key[once], kind[once]))]
         first = np.ones(len(order), bool)
