@@ -841,51 +841,130 @@ def _box_overlaps_path(lower, upper, *, path=None, n_threads=None, partitions=No
     return engine.update(lower, upper)
 
 
+#: cross-set grid: boxes of the second set spanning more cells than this, and
+#: boxes of the first visiting more, go to the cross-set sweep instead
+_CROSS_MAX_SPAN = 64
+_CROSS_MAX_VISIT = 512
+
+
 def _cross_axis(lower, upper, lower_b, upper_b):
-    """Sweep axis of the cross-set query: the one with the fewest expected
+    """Sweep axis of the cross-set sweep: the one with the fewest expected
     candidates, ``n m (mean side of A + mean side of B) / span`` (boxes spread
     evenly over the span of both sets), from the data only."""
     best, axis = np.inf, 0
-    for c in range(3):
-        span = max(float(upper[:, c].max()), float(upper_b[:, c].max())) - min(
-            float(lower[:, c].min()), float(lower_b[:, c].min()))
-        side = float(np.mean(upper[:, c] - lower[:, c])) + float(
-            np.mean(upper_b[:, c] - lower_b[:, c]))
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for c in range(3):
+            span = max(float(upper[:, c].max()), float(upper_b[:, c].max())) - min(
+                float(lower[:, c].min()), float(lower_b[:, c].min()))
+            side = float(np.mean(upper[:, c] - lower[:, c])) + float(
+                np.mean(upper_b[:, c] - lower_b[:, c]))
             cost = side / span if span > 0 else np.inf
-        if not np.isfinite(cost):
-            cost = np.inf
-        if cost < best:
-            best, axis = cost, c
+            if not np.isfinite(cost):
+                cost = np.inf
+            if cost < best:
+                best, axis = cost, c
     return axis
 
 
-def _cross_overlaps(lower, upper, lower_b, upper_b, threads, axis=None):
+def _cross_sweep(kern, lower, upper, lower_b, upper_b, rows_a, rows_b):
+    """Pairs (row of A, row of B) of the boxes ``rows_a`` against ``rows_b``
+    by the cross-set sweep (``kernels/cross.py``)."""
+    if len(rows_a) == 0 or len(rows_b) == 0:
+        return np.empty((0, 2), np.int64)
+    la, ua, lb, ub = lower[rows_a], upper[rows_a], lower_b[rows_b], upper_b[rows_b]
+    axis = _cross_axis(la, ua, lb, ub)
+    o1, o2 = (axis + 1) % 3, (axis + 2) % 3
+
+    def soa(lo, hi):
+        order = np.argsort(lo[:, axis], kind="stable")
+        cols = [lo[order, axis], hi[order, axis], lo[order, o1], hi[order, o1],
+                lo[order, o2], hi[order, o2]]
+        return np.ascontiguousarray(np.stack(cols, axis=1)), order
+
+    sa, oa = soa(la, ua)
+    sb, ob = soa(lb, ub)
+    cnt_a = np.empty(len(sa), np.int64)
+    cnt_b = np.empty(len(sb), np.int64)
+    kern.sweep_count(sa, sb, cnt_a, cnt_b)
+    off = np.zeros(len(sa) + len(sb) + 1, np.int64)
+    np.cumsum(np.concatenate((cnt_a, cnt_b)), out=off[1:])
+    out = np.empty((int(off[-1]), 2), np.int64)
+    if len(out):
+        kern.sweep_fill(sa, sb, np.ascontiguousarray(rows_a[oa]),
+                        np.ascontiguousarray(rows_b[ob]), off[:len(sa)], off[len(sa):-1], out)
+    return out
+
+
+def _cross_grid_plan(lower, upper, lower_b, upper_b):
+    """Region where both sets' spans meet, its grid (lower corner, inverse cell
+    sides, cells per axis), or None when no box can overlap."""
+    lo = np.maximum(lower.min(axis=0), lower_b.min(axis=0))
+    hi = np.minimum(upper.max(axis=0), upper_b.max(axis=0))
+    if (lo > hi).any():
+        return None
+    n_all = len(lower) + len(lower_b)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        ext = hi - lo
+        side = np.maximum(np.mean(upper - lower, axis=0), np.mean(upper_b - lower_b, axis=0))
+        dims = np.ones(3)
+        for c in range(3):
+            if not (ext[c] > 0 and np.isfinite(ext[c])):
+                continue
+            if side[c] > 0 and np.isfinite(side[c]):
+                dims[c] = max(1.0, min(np.floor(ext[c] / side[c]), float(_MAX_SIDE)))
+            else:  # points along this axis: about n^(1/3) cells
+                dims[c] = max(1.0, np.floor(np.cbrt(n_all)))
+        cap = 2.0 * n_all + 64.0
+        while np.prod(dims) > cap:
+            dims = np.maximum(1.0, np.floor(dims / np.cbrt(np.prod(dims) / cap)))
+        inv = np.where(dims > 1, dims / np.where(ext > 0, ext, 1.0), 0.0)
+        inv = np.where(np.isfinite(inv), inv, 0.0)
+    dims = np.where(inv > 0, dims, 1.0).astype(np.int64)
+    return lo, hi, inv, dims
+
+
+def _cross_overlaps(lower, upper, lower_b, upper_b, threads):
     """Pairs (a, b) of overlapping boxes of two validated sets, rows sorted."""
     n, m = lower.shape[0], lower_b.shape[0]
     if n == 0 or m == 0:
         return np.empty((0, 2), np.int64)
-    if axis is None:
-        axis = _cross_axis(lower, upper, lower_b, upper_b)
-    order_a = np.argsort(lower[:, axis], kind="stable")
-    order_b = np.argsort(lower_b[:, axis], kind="stable")
-    key_a = np.ascontiguousarray(lower[order_a, axis])
-    key_b = np.ascontiguousarray(lower_b[order_b, axis])
-    cnt_a = np.empty(n, np.int64)
-    cnt_b = np.empty(m, np.int64)
-    k = _cross if threads > 1 else _cross.serial
-    k.count(lower, upper, lower_b, upper_b, axis, key_a, order_a, key_b, order_b, cnt_a,
-            cnt_b)
-    off = np.concatenate(([0], np.cumsum(cnt_a), np.sum(cnt_a) + np.cumsum(cnt_b)))
-    total = int(off[-1])
-    out = np.empty((total, 2), np.int64)
-    if total:
-        k.fill(lower, upper, lower_b, upper_b, axis, key_a, order_a, key_b, order_b,
-               off[:n], off[n:n + m], out)
-    if total > 1:
+    kern = _cross if threads > 1 else _cross.serial
+    plan = _cross_grid_plan(lower, upper, lower_b, upper_b)
+    if plan is None:
+        return np.empty((0, 2), np.int64)
+    lo, hi, inv, dims = plan
+    span_b = np.empty(m, np.int64)
+    span_a = np.empty(n, np.int64)
+    kern.spans(lower_b, upper_b, lo, inv, dims, span_b)
+    kern.spans(lower, upper, lo, inv, dims, span_a)
+    big_b = span_b > _CROSS_MAX_SPAN
+    big_a = span_a > _CROSS_MAX_VISIT
+    small_b = np.flatnonzero(~big_b)
+    small_a = np.flatnonzero(~big_a)
+    parts = []
+    if len(small_a) and len(small_b):
+        ncell = int(np.prod(dims))
+        start = np.zeros(ncell + 1, np.int64)
+        members = np.empty(int(span_b[small_b].sum()), np.int64)
+        _cross.bin_boxes(lower_b, upper_b, small_b, lo, inv, dims, start, members)
+        cnt = np.empty(len(small_a), np.int64)
+        kern.grid_count(lower, upper, lower_b, upper_b, small_a, lo, hi, inv, dims, start,
+                        members, cnt)
+        off = np.zeros(len(small_a) + 1, np.int64)
+        np.cumsum(cnt, out=off[1:])
+        out = np.empty((int(off[-1]), 2), np.int64)
+        if len(out):
+            kern.grid_fill(lower, upper, lower_b, upper_b, small_a, lo, hi, inv, dims, start,
+                           members, off[:-1], out)
+        parts.append(out)
+    parts.append(_cross_sweep(kern, lower, upper, lower_b, upper_b, np.arange(n),
+                              np.flatnonzero(big_b)))
+    parts.append(_cross_sweep(kern, lower, upper, lower_b, upper_b, np.flatnonzero(big_a),
+                              small_b))
+    out = np.concatenate(parts) if len(parts) > 1 else parts[0]
+    if len(out) > 1:
         if n * m < (1 << 62):
-            key = out[:, 0] * m + out[:, 1]
-            out = out[np.argsort(key, kind="stable")]
+            out = out[np.argsort(out[:, 0] * m + out[:, 1], kind="stable")]
         else:  # pragma: no cover - more than 2**31 boxes in each set
             out = out[np.lexsort((out[:, 1], out[:, 0]))]
     return out

@@ -242,8 +242,8 @@ class TriangleMesh:
     def __init__(self, vertices, faces, *, degenerate="raise"):
         if degenerate not in ("raise", "drop"):
             raise ValueError(f"degenerate must be 'raise' or 'drop', got {degenerate!r}")
-        verts = as_coords(vertices, "vertices", allow_empty=False)
-        faces = _as_faces(faces, len(verts))
+        verts = as_coords(vertices, "vertices", allow_empty=False).copy()  # the mesh's own
+        faces = _as_faces(faces, len(verts)).copy()
         if degenerate == "drop":
             tri = verts[faces]
             ab = tri[:, 1] - tri[:, 0]
@@ -342,7 +342,11 @@ class TriangleMesh:
 
     @vertices.setter
     def vertices(self, value):
-        self._vertices = self._checked_vertices(value, "vertices")
+        verts = self._checked_vertices(value, "vertices")
+        if verts is value or (isinstance(value, np.ndarray) and np.shares_memory(verts, value)):
+            verts = verts.copy()  # the mesh's own copy: the caller's array stays writable
+        verts.flags.writeable = False
+        self._vertices = verts
 
     def _checked_vertices(self, value, name):
         verts = as_coords(value, name)
@@ -350,7 +354,6 @@ class TriangleMesh:
             raise ValueError(f"{name} must have the mesh's shape {self._vertices.shape} (same "
                              f"vertices, moved), got {verts.shape}")
         _check_degenerate(verts[self._faces], name)
-        verts.flags.writeable = False
         return verts
 
     @property
@@ -553,6 +556,7 @@ class WallSearch:
             raise TypeError(f"identity must be True or False, got {type(identity).__name__}")
         self.identity = bool(identity)
         self.n_threads = check_n_threads(n_threads)
+        self._geo = {}
         self._keys = None
         self._previous_rows = None
         self._ended_rows = None
@@ -768,31 +772,48 @@ class WallSearch:
             local //= span
         return rows, shifts
 
+    def _geometry(self, w, mesh, verts, cell, hmax, threads):
+        """Image triangles (m, 3, 3), their rows and shifts, boxes and largest
+        coordinate; kept while the vertices (same array), cell and reach are."""
+        key = (cell, hmax)
+        got = self._geo.get(w)
+        # the mesh's own vertices are read-only (a new array when set): kept while
+        # the same; vertices given for one call are never kept
+        if got is not None and got[0] is verts and verts is mesh.vertices and got[1] == key:
+            return got[2]
+        tri = verts[mesh.faces]  # (f, 3, 3)
+        rows, shifts = self._images(tri, cell, hmax)
+        if cell is not None:
+            itri = tri[rows] + (shifts.astype(np.float64) @ cell.full_matrix)[:, None, :]
+        else:
+            itri = tri
+        itri = np.ascontiguousarray(itri)
+        tlo = np.empty((len(itri), 3))
+        thi = np.empty((len(itri), 3))
+        with num_threads(threads) as used:
+            kern = _tri if used > 1 else _tri.serial
+            top = float(kern.triangle_boxes(itri, tlo, thi))
+        geo = (rows, shifts, itri, tlo, thi, top)
+        self._geo[w] = (verts, key, geo)
+        return geo
+
     def _mesh(self, w, mesh, verts, xw, h, cell, delta, threads):
-        faces = mesh.faces
-        tri = verts[faces]  # (f, 3, 3)
         n = len(xw)
         if cell is not None:
             corners, _, face_edges = mesh._periodic_adjacency(verts, cell)
         else:
             corners, face_edges = mesh._corners, mesh._face_edges
         hmax = float(h.max()) if n else 0.0
-        rows, shifts = self._images(tri, cell, hmax)
-        itri = tri[rows]
-        if cell is not None:
-            itri = itri + (shifts.astype(np.float64) @ cell.full_matrix)[:, None, :]
-        itri = np.ascontiguousarray(itri)
+        if threads is None and n + len(mesh.faces) < _PARALLEL_MIN:
+            threads = 1
+        rows, shifts, itri, tlo, thi, top = self._geometry(w, mesh, verts, cell, hmax, threads)
         if n == 0 or len(itri) == 0:
             return self._mesh_rows(w, np.empty(0, np.int64), np.empty(0, np.int64),
                                    np.empty(0, np.int64), np.empty((0, 2), np.int64),
                                    np.empty(0), np.empty((0, 3)), np.empty((0, 3)),
                                    np.empty((0, 3), np.int64)), 0
-        scale = max(float(np.abs(xw).max()), float(np.abs(itri).max()))
+        scale = max(float(np.abs(xw).max()), top)
         pad = h + _GUARD * (np.abs(h) + scale)
-        tlo = itri.min(axis=1)
-        thi = itri.max(axis=1)
-        if threads is None and n + len(itri) < _PARALLEL_MIN:
-            threads = 1
         with num_threads(threads) as used:
             cand = _cross_overlaps(xw - pad[:, None], xw + pad[:, None], tlo, thi, used)
             k = len(cand)

@@ -1,25 +1,37 @@
 """Cross-set box overlaps: every box of set A against every box of set B.
 
-A one-axis Sweep and Prune over the two sets with set labels (the sweep of
-Algorithm 1 of Capannini & Larsson, where only pairs of different labels are
-kept).  Both sets are sorted by their lower bound along the sweep axis; a
-pair ``(a, b)`` overlapping on that axis is found exactly once, by the box
-that starts *later* along the axis, inside the interval of the one that starts
-first:
+Two exact methods, chosen per box by the API (``api._cross_overlaps``):
 
-* pass A, for every ``a``: the ``b`` with ``lower_a <= lower_b <= upper_a``
-  (a range of B's sorted lower bounds, two binary searches);
+*Grid* (most boxes).  Overlaps can only occur inside the region ``R`` where
+the two sets' spans meet.  ``R`` is cut into a uniform grid of cells about
+as wide as the boxes; every box of B is listed in each cell it overlaps (a
+counting sort by cell), and every box of A visits the cells it overlaps and
+tests the B boxes listed there.  A pair found in several cells is reported
+in one only: the cell holding the lower corner of the two boxes'
+intersection, ``max(lower_a, lower_b)`` per axis.  That corner lies in both
+boxes, and cell indices are a monotone function of the coordinate (floor,
+then clamped to the grid), so its cell is one both boxes are binned to: each
+pair is found exactly once, without de-duplication.  Cost ``O(n + m +
+cells + candidates)``.
+
+*Sweep* (boxes spanning many cells: a floor made of two big triangles, one
+sphere much bigger than the rest).  The one-axis Sweep and Prune of
+Algorithm 1 of Capannini & Larsson over both sets with set labels.  Both
+sets are sorted by their lower bound along the sweep axis; a pair
+overlapping on that axis is found exactly once, by the box that starts
+later, inside the interval of the one that starts first:
+
+* pass A, for every ``a``: the ``b`` with ``lower_a <= lower_b <= upper_a``;
 * pass B, for every ``b``: the ``a`` with ``lower_b < lower_a <= upper_b``
-  (strict on the left: a tie of lower bounds belongs to pass A).
+  (strict on the left: a tie of lower bounds belongs to pass A),
 
-Each candidate is then tested on the two other axes (closed boxes).  Cost
-``O((n + m) log(n + m) + candidates)``; the candidates are the pairs that
-overlap on the sweep axis, so the API picks the axis along which the boxes
-are thinnest relative to their spread.
+then tested on the two other axes.  Cost ``O((n + m) log(n + m) +
+candidates)``.
 
-Both passes run twice, count then fill, in parallel over rows: every row
-writes its own count and then its own slice of the output (offsets from a
-prefix sum), so the result does not depend on the thread count.
+Every pass runs twice, count then fill, in parallel over rows: each row
+writes its own count, then its own slice of the output (offsets from a
+prefix sum), so the result does not depend on the thread count.  Boxes are
+closed (touching counts) on both paths.
 """
 
 from __future__ import annotations
@@ -29,73 +41,177 @@ from types import SimpleNamespace
 import numba
 import numpy as np
 
-from .._numba import ijit, pjit, serial_twin
+from .._numba import ijit, jit, pjit, serial_twin
+
+# ----------------------------------------------------------------- the grid
 
 
 @ijit
-def _overlap(la, ua, lb, ub, i, j, a0, a1):
-    """Closed overlap of box ``i`` of A and box ``j`` of B on axes a0 and a1."""
-    return (la[i, a0] <= ub[j, a0] and lb[j, a0] <= ua[i, a0]
-            and la[i, a1] <= ub[j, a1] and lb[j, a1] <= ua[i, a1])
+def _cell(x, lo, inv, dim):
+    """Cell index of coordinate ``x`` along one axis (monotone in ``x``)."""
+    if inv == 0.0:
+        return np.int64(0)
+    c = np.floor((x - lo) * inv)
+    if c < 0.0:
+        return np.int64(0)
+    if c >= dim - 1:
+        return np.int64(dim - 1)
+    return np.int64(c)
 
 
 @pjit
-def count(la, ua, lb, ub, axis, key_a, order_a, key_b, order_b, cnt_a, cnt_b):
-    """Pairs found by each row of A (pass A) and each row of B (pass B).
+def spans(lower, upper, lo, inv, dims, out):
+    """Cells of the grid each box overlaps (as :func:`bin_boxes` bins them)."""
+    for b in numba.prange(lower.shape[0]):
+        c = np.int64(1)
+        for ax in range(3):
+            c *= (_cell(upper[b, ax], lo[ax], inv[ax], dims[ax])
+                  - _cell(lower[b, ax], lo[ax], inv[ax], dims[ax]) + 1)
+        out[b] = c
 
-    ``key_a``/``key_b``: the lower bounds along ``axis`` sorted ascending;
-    ``order_a``/``order_b``: the rows in that order.
+
+@jit
+def bin_boxes(lower, upper, rows, lo, inv, dims, start, members):
+    """Counting sort of the boxes ``rows`` of B into every cell they overlap.
+
+    ``start`` (cells + 1,) zeroed on entry: CSR offsets on return; ``members``
+    (insertions,): the rows, by cell.  Serial (a sort by cell; the query is
+    the parallel part).
     """
-    a0 = (axis + 1) % 3
-    a1 = (axis + 2) % 3
-    n = la.shape[0]
-    m = lb.shape[0]
-    for i in numba.prange(n):
-        lo = np.searchsorted(key_b, la[i, axis], side="left")
-        hi = np.searchsorted(key_b, ua[i, axis], side="right")
-        c = 0
-        for s in range(lo, hi):
-            if _overlap(la, ua, lb, ub, i, order_b[s], a0, a1):
-                c += 1
-        cnt_a[i] = c
-    for j in numba.prange(m):
-        lo = np.searchsorted(key_a, lb[j, axis], side="right")
-        hi = np.searchsorted(key_a, ub[j, axis], side="right")
-        c = 0
-        for s in range(lo, hi):
-            if _overlap(la, ua, lb, ub, order_a[s], j, a0, a1):
-                c += 1
-        cnt_b[j] = c
+    n0, n1 = dims[1], dims[2]
+    for k in range(rows.shape[0]):
+        b = rows[k]
+        i0 = _cell(lower[b, 0], lo[0], inv[0], dims[0])
+        i1 = _cell(upper[b, 0], lo[0], inv[0], dims[0])
+        j0 = _cell(lower[b, 1], lo[1], inv[1], dims[1])
+        j1 = _cell(upper[b, 1], lo[1], inv[1], dims[1])
+        k0 = _cell(lower[b, 2], lo[2], inv[2], dims[2])
+        k1 = _cell(upper[b, 2], lo[2], inv[2], dims[2])
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                for q in range(k0, k1 + 1):
+                    start[(i * n0 + j) * n1 + q + 1] += 1
+    for c in range(start.shape[0] - 1):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    for k in range(rows.shape[0]):
+        b = rows[k]
+        i0 = _cell(lower[b, 0], lo[0], inv[0], dims[0])
+        i1 = _cell(upper[b, 0], lo[0], inv[0], dims[0])
+        j0 = _cell(lower[b, 1], lo[1], inv[1], dims[1])
+        j1 = _cell(upper[b, 1], lo[1], inv[1], dims[1])
+        k0 = _cell(lower[b, 2], lo[2], inv[2], dims[2])
+        k1 = _cell(upper[b, 2], lo[2], inv[2], dims[2])
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                for q in range(k0, k1 + 1):
+                    c = (i * n0 + j) * n1 + q
+                    members[fill[c]] = b
+                    fill[c] += 1
+
+
+@ijit
+def _grid_row(la, ua, lb, ub, a, lo, hi, inv, dims, start, members, out, w, write):
+    """Pairs of box ``a`` of A with the B boxes of the grid (count, or write at w)."""
+    c = np.int64(0)
+    for ax in range(3):
+        if ua[a, ax] < lo[ax] or la[a, ax] > hi[ax]:
+            return c  # outside the region where the sets meet
+    n0, n1 = dims[1], dims[2]
+    i0 = _cell(la[a, 0], lo[0], inv[0], dims[0])
+    i1 = _cell(ua[a, 0], lo[0], inv[0], dims[0])
+    j0 = _cell(la[a, 1], lo[1], inv[1], dims[1])
+    j1 = _cell(ua[a, 1], lo[1], inv[1], dims[1])
+    k0 = _cell(la[a, 2], lo[2], inv[2], dims[2])
+    k1 = _cell(ua[a, 2], lo[2], inv[2], dims[2])
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            for q in range(k0, k1 + 1):
+                cell = (i * n0 + j) * n1 + q
+                for s in range(start[cell], start[cell + 1]):
+                    b = members[s]
+                    if not (la[a, 0] <= ub[b, 0] and lb[b, 0] <= ua[a, 0]
+                            and la[a, 1] <= ub[b, 1] and lb[b, 1] <= ua[a, 1]
+                            and la[a, 2] <= ub[b, 2] and lb[b, 2] <= ua[a, 2]):
+                        continue
+                    # report in the cell of the intersection's lower corner only
+                    if _cell(max(la[a, 0], lb[b, 0]), lo[0], inv[0], dims[0]) != i:
+                        continue
+                    if _cell(max(la[a, 1], lb[b, 1]), lo[1], inv[1], dims[1]) != j:
+                        continue
+                    if _cell(max(la[a, 2], lb[b, 2]), lo[2], inv[2], dims[2]) != q:
+                        continue
+                    if write:
+                        out[w + c, 0] = a
+                        out[w + c, 1] = b
+                    c += 1
+    return c
 
 
 @pjit
-def fill(la, ua, lb, ub, axis, key_a, order_a, key_b, order_b, off_a, off_b, out):
-    """Write the pairs counted by :func:`count` at the rows' offsets."""
-    a0 = (axis + 1) % 3
-    a1 = (axis + 2) % 3
-    n = la.shape[0]
-    m = lb.shape[0]
-    for i in numba.prange(n):
-        lo = np.searchsorted(key_b, la[i, axis], side="left")
-        hi = np.searchsorted(key_b, ua[i, axis], side="right")
-        w = off_a[i]
-        for s in range(lo, hi):
-            j = order_b[s]
-            if _overlap(la, ua, lb, ub, i, j, a0, a1):
-                out[w, 0] = i
-                out[w, 1] = j
-                w += 1
-    for j in numba.prange(m):
-        lo = np.searchsorted(key_a, lb[j, axis], side="right")
-        hi = np.searchsorted(key_a, ub[j, axis], side="right")
-        w = off_b[j]
-        for s in range(lo, hi):
-            i = order_a[s]
-            if _overlap(la, ua, lb, ub, i, j, a0, a1):
-                out[w, 0] = i
-                out[w, 1] = j
-                w += 1
+def grid_count(la, ua, lb, ub, rows, lo, hi, inv, dims, start, members, cnt):
+    """Pairs of each box ``rows[k]`` of A with the binned boxes of B."""
+    dummy = np.empty((0, 2), np.int64)
+    for k in numba.prange(rows.shape[0]):
+        cnt[k] = _grid_row(la, ua, lb, ub, rows[k], lo, hi, inv, dims, start, members, dummy,
+                           0, False)
 
 
-#: the serial builds (no thread-pool launch) for one thread
-serial = SimpleNamespace(count=serial_twin(count), fill=serial_twin(fill))
+@pjit
+def grid_fill(la, ua, lb, ub, rows, lo, hi, inv, dims, start, members, off, out):
+    """Write the pairs counted by :func:`grid_count` at the rows' offsets."""
+    for k in numba.prange(rows.shape[0]):
+        _grid_row(la, ua, lb, ub, rows[k], lo, hi, inv, dims, start, members, out, off[k],
+                  True)
+
+
+# ----------------------------------------------------------------- the sweep
+
+
+@ijit
+def _sweep_row(s_self, i, s_other, strict, out, w, write, rows_self, rows_other, self_is_a):
+    """Boxes of the other set starting inside row ``i``'s interval (sorted SoA rows:
+    lower, upper on the sweep axis, then the two other axes' bounds)."""
+    m = s_other.shape[0]
+    lo = s_self[i, 0]
+    hi = s_self[i, 1]
+    s = np.searchsorted(s_other[:, 0], lo, side="right" if strict else "left")
+    c = np.int64(0)
+    while s < m and s_other[s, 0] <= hi:
+        if (s_self[i, 2] <= s_other[s, 3] and s_other[s, 2] <= s_self[i, 3]
+                and s_self[i, 4] <= s_other[s, 5] and s_other[s, 4] <= s_self[i, 5]):
+            if write:
+                if self_is_a:
+                    out[w + c, 0] = rows_self[i]
+                    out[w + c, 1] = rows_other[s]
+                else:
+                    out[w + c, 0] = rows_other[s]
+                    out[w + c, 1] = rows_self[i]
+            c += 1
+        s += 1
+    return c
+
+
+@pjit
+def sweep_count(sa, sb, cnt_a, cnt_b):
+    """Pairs found by each sorted row of A (pass A) and of B (pass B)."""
+    dummy = np.empty((0, 2), np.int64)
+    none = np.empty(0, np.int64)
+    for i in numba.prange(sa.shape[0]):
+        cnt_a[i] = _sweep_row(sa, i, sb, False, dummy, 0, False, none, none, True)
+    for j in numba.prange(sb.shape[0]):
+        cnt_b[j] = _sweep_row(sb, j, sa, True, dummy, 0, False, none, none, False)
+
+
+@pjit
+def sweep_fill(sa, sb, rows_a, rows_b, off_a, off_b, out):
+    """Write the pairs counted by :func:`sweep_count` (as rows of A and B)."""
+    for i in numba.prange(sa.shape[0]):
+        _sweep_row(sa, i, sb, False, out, off_a[i], True, rows_a, rows_b, True)
+    for j in numba.prange(sb.shape[0]):
+        _sweep_row(sb, j, sa, True, out, off_b[j], True, rows_b, rows_a, False)
+
+
+#: the parallel kernels compiled serially (no thread-pool launch) for one thread
+serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in (
+    "spans", "grid_count", "grid_fill", "sweep_count", "sweep_fill")})

@@ -102,5 +102,24 @@ def sphere_triangles(cand, centres, tri, dist, point, region):
         region[k] = reg
 
 
-#: the serial build (no thread-pool launch) for one thread
-serial = SimpleNamespace(sphere_triangles=serial_twin(sphere_triangles))
+@pjit
+def triangle_boxes(tri, lower, upper):
+    """Bounding boxes of the triangles ``tri`` (m, 3, 3) and the largest
+    absolute coordinate (for the broad phase's rounding guard)."""
+    m = tri.shape[0]
+    big = np.zeros(m)
+    for t in numba.prange(m):
+        top = 0.0
+        for ax in range(3):
+            lo = min(tri[t, 0, ax], tri[t, 1, ax], tri[t, 2, ax])
+            hi = max(tri[t, 0, ax], tri[t, 1, ax], tri[t, 2, ax])
+            lower[t, ax] = lo
+            upper[t, ax] = hi
+            top = max(top, abs(lo), abs(hi))
+        big[t] = top
+    return big.max() if m else 0.0
+
+
+#: the serial builds (no thread-pool launch) for one thread
+serial = SimpleNamespace(sphere_triangles=serial_twin(sphere_triangles),
+                         triangle_boxes=serial_twin(triangle_boxes))
