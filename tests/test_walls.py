@@ -756,6 +756,33 @@ class TestCrossBoxes:
         np.testing.assert_array_equal(swapped[:, ::-1][np.lexsort((swapped[:, 0],
                                                                    swapped[:, 1]))], want)
 
+    @pytest.mark.parametrize("n_threads", [1, 2])
+    def test_big_boxes_in_both_sets(self, n_threads):
+        # a few boxes spanning most of the grid go to the sweep, the rest to the
+        # grid; pairs between the two kinds are found once
+        rng = np.random.default_rng(11)
+        la = rng.uniform(0, 20, (2000, 3))
+        ua = la + rng.uniform(0, 0.5, la.shape)
+        lb = rng.uniform(0, 20, (1500, 3))
+        ub = lb + rng.uniform(0, 0.5, lb.shape)
+        for lo, hi in ((la, ua), (lb, ub)):
+            hi[:8] = lo[:8] + rng.uniform(5, 20, (8, 3))
+        hi_a = ua.copy()
+        hi_a[8:12, 0] += 19.0  # long along one axis only
+        got = box_overlaps(la, hi_a, lb, ub, n_threads=n_threads)
+        np.testing.assert_array_equal(got, brute_cross(la, hi_a, lb, ub))
+        assert len(got) > 1000
+
+    @pytest.mark.parametrize("scale", [1e-300, 1.0, 1e300])
+    def test_points_and_extreme_coordinates(self, scale):
+        rng = np.random.default_rng(12)
+        a = rng.integers(-3, 4, (300, 3)).astype(float) * scale
+        b = rng.integers(-3, 4, (200, 3)).astype(float) * scale
+        # points (zero-size boxes) against unit boxes: touching counts
+        want = brute_cross(a, a, b, b + scale)
+        np.testing.assert_array_equal(box_overlaps(a, a, b, b + scale), want)
+        np.testing.assert_array_equal(box_overlaps(a, a, b, b), brute_cross(a, a, b, b))
+
     def test_every_axis_can_be_the_sweep(self):
         rng = np.random.default_rng(9)
         for axis in range(3):
