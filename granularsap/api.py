@@ -885,12 +885,14 @@ def _cross_sweep(kern, lower, upper, lower_b, upper_b, rows_a, rows_b):
     sb, ob = soa(lb, ub)
     cnt_a = np.empty(len(sa), np.int64)
     cnt_b = np.empty(len(sb), np.int64)
-    kern.sweep_count(sa, sb, cnt_a, cnt_b)
+    key_a = np.ascontiguousarray(sa[:, 0])
+    key_b = np.ascontiguousarray(sb[:, 0])
+    kern.sweep_count(sa, key_a, sb, key_b, cnt_a, cnt_b)
     off = np.zeros(len(sa) + len(sb) + 1, np.int64)
     np.cumsum(np.concatenate((cnt_a, cnt_b)), out=off[1:])
     out = np.empty((int(off[-1]), 2), np.int64)
     if len(out):
-        kern.sweep_fill(sa, sb, np.ascontiguousarray(rows_a[oa]),
+        kern.sweep_fill(sa, key_a, sb, key_b, np.ascontiguousarray(rows_a[oa]),
                         np.ascontiguousarray(rows_b[ob]), off[:len(sa)], off[len(sa):-1], out)
     return out
 
@@ -898,14 +900,18 @@ def _cross_sweep(kern, lower, upper, lower_b, upper_b, rows_a, rows_b):
 def _cross_grid_plan(lower, upper, lower_b, upper_b):
     """Region where both sets' spans meet, its grid (lower corner, inverse cell
     sides, cells per axis), or None when no box can overlap."""
-    lo = np.maximum(lower.min(axis=0), lower_b.min(axis=0))
-    hi = np.minimum(upper.max(axis=0), upper_b.max(axis=0))
+    lo_a, hi_a, side_a = np.empty(3), np.empty(3), np.empty(3)
+    lo_b, hi_b, side_b = np.empty(3), np.empty(3), np.empty(3)
+    _cross.extent(lower, upper, lo_a, hi_a, side_a)
+    _cross.extent(lower_b, upper_b, lo_b, hi_b, side_b)
+    lo = np.maximum(lo_a, lo_b)
+    hi = np.minimum(hi_a, hi_b)
     if (lo > hi).any():
         return None
     n_all = len(lower) + len(lower_b)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         ext = hi - lo
-        side = np.maximum(np.mean(upper - lower, axis=0), np.mean(upper_b - lower_b, axis=0))
+        side = np.maximum(side_a, side_b)
         dims = np.ones(3)
         for c in range(3):
             if not (ext[c] > 0 and np.isfinite(ext[c])):

@@ -59,6 +59,23 @@ def _cell(x, lo, inv, dim):
     return np.int64(c)
 
 
+@jit
+def extent(lower, upper, lo, hi, side):
+    """Lowest lower corner, highest upper corner and mean side per axis (one pass)."""
+    n = lower.shape[0]
+    for ax in range(3):
+        lo[ax] = np.inf
+        hi[ax] = -np.inf
+        side[ax] = 0.0
+    for b in range(n):
+        for ax in range(3):
+            lo[ax] = min(lo[ax], lower[b, ax])
+            hi[ax] = max(hi[ax], upper[b, ax])
+            side[ax] += upper[b, ax] - lower[b, ax]
+    for ax in range(3):
+        side[ax] /= max(n, 1)
+
+
 @pjit
 def spans(lower, upper, lo, inv, dims, out):
     """Cells of the grid each box overlaps (as :func:`bin_boxes` bins them)."""
@@ -111,12 +128,16 @@ def bin_boxes(lower, upper, rows, lo, inv, dims, start, members):
 
 
 @ijit
+def _outside(la, ua, a, lo, hi):
+    """Box ``a`` misses the region where the two sets meet."""
+    return (ua[a, 0] < lo[0] or la[a, 0] > hi[0] or ua[a, 1] < lo[1] or la[a, 1] > hi[1]
+            or ua[a, 2] < lo[2] or la[a, 2] > hi[2])
+
+
+@ijit
 def _grid_row(la, ua, lb, ub, a, lo, hi, inv, dims, start, members, out, w, write):
     """Pairs of box ``a`` of A with the B boxes of the grid (count, or write at w)."""
     c = np.int64(0)
-    for ax in range(3):
-        if ua[a, ax] < lo[ax] or la[a, ax] > hi[ax]:
-            return c  # outside the region where the sets meet
     n0, n1 = dims[1], dims[2]
     i0 = _cell(la[a, 0], lo[0], inv[0], dims[0])
     i1 = _cell(ua[a, 0], lo[0], inv[0], dims[0])
@@ -153,63 +174,81 @@ def grid_count(la, ua, lb, ub, rows, lo, hi, inv, dims, start, members, cnt):
     """Pairs of each box ``rows[k]`` of A with the binned boxes of B."""
     dummy = np.empty((0, 2), np.int64)
     for k in numba.prange(rows.shape[0]):
-        cnt[k] = _grid_row(la, ua, lb, ub, rows[k], lo, hi, inv, dims, start, members, dummy,
-                           0, False)
+        # the test ahead of the call: most boxes of A miss the region, and a
+        # call with array arguments costs more than the test
+        if _outside(la, ua, rows[k], lo, hi):
+            cnt[k] = 0
+        else:
+            cnt[k] = _grid_row(la, ua, lb, ub, rows[k], lo, hi, inv, dims, start, members,
+                               dummy, 0, False)
 
 
 @pjit
 def grid_fill(la, ua, lb, ub, rows, lo, hi, inv, dims, start, members, off, out):
     """Write the pairs counted by :func:`grid_count` at the rows' offsets."""
     for k in numba.prange(rows.shape[0]):
-        _grid_row(la, ua, lb, ub, rows[k], lo, hi, inv, dims, start, members, out, off[k],
-                  True)
+        if not _outside(la, ua, rows[k], lo, hi):
+            _grid_row(la, ua, lb, ub, rows[k], lo, hi, inv, dims, start, members, out, off[k],
+                      True)
 
 
 # ----------------------------------------------------------------- the sweep
 
 
-@ijit
-def _sweep_row(s_self, i, s_other, strict, out, w, write, rows_self, rows_other, self_is_a):
-    """Boxes of the other set starting inside row ``i``'s interval (sorted SoA rows:
-    lower, upper on the sweep axis, then the two other axes' bounds)."""
-    m = s_other.shape[0]
-    lo = s_self[i, 0]
-    hi = s_self[i, 1]
-    s = np.searchsorted(s_other[:, 0], lo, side="right" if strict else "left")
-    c = np.int64(0)
-    while s < m and s_other[s, 0] <= hi:
-        if (s_self[i, 2] <= s_other[s, 3] and s_other[s, 2] <= s_self[i, 3]
-                and s_self[i, 4] <= s_other[s, 5] and s_other[s, 4] <= s_self[i, 5]):
-            if write:
-                if self_is_a:
-                    out[w + c, 0] = rows_self[i]
-                    out[w + c, 1] = rows_other[s]
-                else:
-                    out[w + c, 0] = rows_other[s]
-                    out[w + c, 1] = rows_self[i]
-            c += 1
-        s += 1
-    return c
+@pjit
+def sweep_count(sa, key_a, sb, key_b, cnt_a, cnt_b):
+    """Pairs found by each sorted row of A (pass A) and of B (pass B).
+
+    ``sa``, ``sb``: the boxes sorted by lower bound on the sweep axis, as rows
+    (lower, upper on the sweep axis, then the two other axes' bounds);
+    ``key_a``, ``key_b``: their first columns, contiguous (binary searches on
+    a column view would take and drop a reference per call).
+    """
+    n, m = sa.shape[0], sb.shape[0]
+    for i in numba.prange(n):
+        s = np.searchsorted(key_b, sa[i, 0], side="left")
+        c = 0
+        while s < m and sb[s, 0] <= sa[i, 1]:
+            if (sa[i, 2] <= sb[s, 3] and sb[s, 2] <= sa[i, 3] and sa[i, 4] <= sb[s, 5]
+                    and sb[s, 4] <= sa[i, 5]):
+                c += 1
+            s += 1
+        cnt_a[i] = c
+    for j in numba.prange(m):
+        s = np.searchsorted(key_a, sb[j, 0], side="right")
+        c = 0
+        while s < n and sa[s, 0] <= sb[j, 1]:
+            if (sb[j, 2] <= sa[s, 3] and sa[s, 2] <= sb[j, 3] and sb[j, 4] <= sa[s, 5]
+                    and sa[s, 4] <= sb[j, 5]):
+                c += 1
+            s += 1
+        cnt_b[j] = c
 
 
 @pjit
-def sweep_count(sa, sb, cnt_a, cnt_b):
-    """Pairs found by each sorted row of A (pass A) and of B (pass B)."""
-    dummy = np.empty((0, 2), np.int64)
-    none = np.empty(0, np.int64)
-    for i in numba.prange(sa.shape[0]):
-        cnt_a[i] = _sweep_row(sa, i, sb, False, dummy, 0, False, none, none, True)
-    for j in numba.prange(sb.shape[0]):
-        cnt_b[j] = _sweep_row(sb, j, sa, True, dummy, 0, False, none, none, False)
-
-
-@pjit
-def sweep_fill(sa, sb, rows_a, rows_b, off_a, off_b, out):
+def sweep_fill(sa, key_a, sb, key_b, rows_a, rows_b, off_a, off_b, out):
     """Write the pairs counted by :func:`sweep_count` (as rows of A and B)."""
-    for i in numba.prange(sa.shape[0]):
-        _sweep_row(sa, i, sb, False, out, off_a[i], True, rows_a, rows_b, True)
-    for j in numba.prange(sb.shape[0]):
-        _sweep_row(sb, j, sa, True, out, off_b[j], True, rows_b, rows_a, False)
+    n, m = sa.shape[0], sb.shape[0]
+    for i in numba.prange(n):
+        s = np.searchsorted(key_b, sa[i, 0], side="left")
+        w = off_a[i]
+        while s < m and sb[s, 0] <= sa[i, 1]:
+            if (sa[i, 2] <= sb[s, 3] and sb[s, 2] <= sa[i, 3] and sa[i, 4] <= sb[s, 5]
+                    and sb[s, 4] <= sa[i, 5]):
+                out[w, 0] = rows_a[i]
+                out[w, 1] = rows_b[s]
+                w += 1
+            s += 1
+    for j in numba.prange(m):
+        s = np.searchsorted(key_a, sb[j, 0], side="right")
+        w = off_b[j]
+        while s < n and sa[s, 0] <= sb[j, 1]:
+            if (sb[j, 2] <= sa[s, 3] and sa[s, 2] <= sb[j, 3] and sb[j, 4] <= sa[s, 5]
+                    and sa[s, 4] <= sb[j, 5]):
+                out[w, 0] = rows_a[s]
+                out[w, 1] = rows_b[j]
+                w += 1
+            s += 1
 
 
 #: the parallel kernels compiled serially (no thread-pool launch) for one thread
