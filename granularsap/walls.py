@@ -268,7 +268,7 @@ class TriangleMesh:
         self._corners, self._edges, self._face_edges = _adjacency(self._vid, faces)
         for a in (self._corners, self._edges, self._face_edges):
             a.flags.writeable = False
-        self._periodic = {}
+        self._periodic = None
 
     @classmethod
     def read(cls, path, *, file_format=None, degenerate="raise"):
@@ -387,9 +387,8 @@ class TriangleMesh:
 
     def _periodic_adjacency(self, verts, cell):
         """Adjacency with vertices that coincide modulo the periodic cell vectors
-        identified (cached per cell)."""
-        key = hash(cell)
-        got = self._periodic.get(key)
+        identified (kept for the last cell)."""
+        got = self._periodic
         if got is not None and got[0] == cell:
             return got[1]
         s = cell.fractional(verts)
@@ -402,7 +401,7 @@ class TriangleMesh:
         _, first, inverse = np.unique(q + 0.0, axis=0, return_index=True, return_inverse=True)
         vid = np.ascontiguousarray(self._vid[first[inverse.reshape(-1)]], dtype=np.int64)
         adj = _adjacency(vid, self._faces)
-        self._periodic[key] = (cell, adj)
+        self._periodic = (cell, adj)  # the last cell only (a deforming cell: one entry)
         return adj
 
 
@@ -592,7 +591,8 @@ class WallSearch:
         Returns
         -------
         h : (k, ...) ndarray
-            ``h_prev[previous_rows]``, ``fill`` where ``previous_rows == -1``.
+            ``h_prev[previous_rows]``, ``fill`` where ``previous_rows == -1``;
+            the dtype of ``h_prev``.
 
         Raises
         ------
@@ -606,8 +606,7 @@ class WallSearch:
             raise ValueError(f"h_prev must have one row per contact of the previous call "
                              f"({self._prev_count}), got {got}")
         prev = self._previous_rows
-        out = np.full((len(prev),) + h_prev.shape[1:], fill, dtype=np.result_type(
-            h_prev.dtype, np.min_scalar_type(fill) if np.isscalar(fill) else h_prev.dtype))
+        out = np.full((len(prev),) + h_prev.shape[1:], fill, dtype=h_prev.dtype)
         live = prev >= 0
         out[live] = h_prev[prev[live]]
         return out
@@ -697,9 +696,9 @@ class WallSearch:
         if vertices is None:
             return current
         meshes = [i for i, w in enumerate(self.walls) if isinstance(w, TriangleMesh)]
-        if isinstance(vertices, (list, tuple)) and len(vertices) == len(self.walls) and (
-                len(self.walls) != 1 or np.ndim(vertices) != 2 or len(meshes) != 1
-                or any(v is None for v in vertices)):
+        per_wall = isinstance(vertices, (list, tuple)) and len(vertices) == len(self.walls) and all(
+            v is None or np.ndim(v) == 2 for v in vertices)
+        if per_wall:
             given = list(vertices)
         elif len(meshes) == 1:
             given = [None] * len(self.walls)

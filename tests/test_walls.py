@@ -14,7 +14,7 @@ import itertools
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 import granularsap
@@ -334,6 +334,24 @@ class TestRandom:
         d = x[c.sphere] - c.point
         np.testing.assert_allclose(c.normal * c.distance[:, None], d, atol=1e-12)
         np.testing.assert_allclose(np.linalg.norm(c.normal, axis=1), 1.0)
+
+    @settings(max_examples=50, deadline=None)
+    @given(st.lists(st.integers(-4, 4), min_size=16, max_size=16),
+           st.lists(st.tuples(st.integers(-4, 28), st.integers(-4, 28), st.integers(-8, 8)),
+                    min_size=1, max_size=8),
+           st.sampled_from([0.25, 0.5, 0.75]))
+    def test_dyadic_height_fields(self, heights, cells, r):
+        # exact ties everywhere: centres above edges and vertices, equal distances
+        v, f = grid_floor(3, 3)
+        v[:, 2] = np.array(heights) / 8
+        x = np.array([[i / 8, j / 8, k / 8] for i, j, k in cells])
+        oracle = oracle_contacts(x, r, v, f)
+        tri = v[f]
+        for p in x:  # no distance within rounding of the contact distance
+            d = [closest_on_triangle(p, *t)[0] for t in tri]
+            assume(all(abs(di - r) > 1e-9 for di in d))
+        c = WallSearch([TriangleMesh(v, f)]).update(x, r)
+        assert_matches(c, oracle, rtol=1e-12, atol=1e-12)
 
     def test_triangle_soup_against_brute_force(self):
         rng = np.random.default_rng(7)
