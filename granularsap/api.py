@@ -956,12 +956,14 @@ def _cross_overlaps(lower, upper, lower_b, upper_b, threads):
         cnt = np.empty(len(small_a), np.int64)
         kern.grid_count(lower, upper, lower_b, upper_b, small_a, lo, hi, inv, dims, start,
                         members, cnt)
-        off = np.zeros(len(small_a) + 1, np.int64)
-        np.cumsum(cnt, out=off[1:])
+        # the fill pass visits only the boxes that found pairs
+        found = np.flatnonzero(cnt)
+        off = np.zeros(len(found) + 1, np.int64)
+        np.cumsum(cnt[found], out=off[1:])
         out = np.empty((int(off[-1]), 2), np.int64)
         if len(out):
-            kern.grid_fill(lower, upper, lower_b, upper_b, small_a, lo, hi, inv, dims, start,
-                           members, off[:-1], out)
+            kern.grid_fill(lower, upper, lower_b, upper_b, small_a[found], lo, hi, inv, dims,
+                           start, members, off[:-1], out)
         parts.append(out)
     parts.append(_cross_sweep(kern, lower, upper, lower_b, upper_b, np.arange(n),
                               np.flatnonzero(big_b)))

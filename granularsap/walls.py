@@ -41,7 +41,7 @@ import numpy as np
 
 from ._numba import num_threads
 from ._validate import as_coords, as_scalar, as_vector, check_n_threads
-from .api import _cross_overlaps
+from .api import box_overlaps
 from .cell import Cell
 from .kernels import triangles as _tri
 
@@ -814,7 +814,7 @@ class WallSearch:
         scale = max(float(np.abs(xw).max()), top)
         pad = h + _GUARD * (np.abs(h) + scale)
         with num_threads(threads) as used:
-            cand = _cross_overlaps(xw - pad[:, None], xw + pad[:, None], tlo, thi, used)
+            cand = box_overlaps(xw - pad[:, None], xw + pad[:, None], tlo, thi, n_threads=used)
             k = len(cand)
             dist = np.empty(k)
             point = np.empty((k, 3))
