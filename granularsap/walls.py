@@ -427,6 +427,15 @@ class WallContacts(NamedTuple):
     point : (k, 3) float64
         The closest point of the wall, in the frame of the sphere's given
         position (its periodic image nearest to it).
+
+    Examples
+    --------
+    >>> from granularsap import Plane, WallSearch
+    >>> c = WallSearch([Plane([0, 0, 0], [0, 0, 1])]).update([[1.0, 2.0, 0.4]], 0.5)
+    >>> c._fields
+    ('sphere', 'wall', 'element', 'feature', 'distance', 'normal', 'point')
+    >>> c.point.tolist(), float(0.5 - c.distance[0])  # closest point, overlap
+    ([[1.0, 2.0, 0.0]], 0.09999999999999998)
     """
 
     sphere: np.ndarray
@@ -598,6 +607,17 @@ class WallSearch:
         ------
         ValueError
             ``h_prev`` does not have one row per contact of the previous call.
+
+        Examples
+        --------
+        >>> from granularsap import Plane, WallSearch
+        >>> walls = WallSearch([Plane([0, 0, 0], [0, 0, 1])], identity=True)
+        >>> walls.update([[0, 0, 0.4], [3, 0, 0.1]], 0.5, ids=[10, 11]).sphere.tolist()
+        [0, 1]
+        >>> ages = np.array([5, 7])             # one per contact of that call
+        >>> c = walls.update([[3, 0, 0.2], [6, 0, 0.3]], 0.5, ids=[11, 12])  # 10 left
+        >>> walls.previous_rows.tolist(), walls.carry(ages, fill=0).tolist()
+        ([1, -1], [7, 0])
         """
         self._need_identity("carry")
         h_prev = np.asarray(h_prev)
