@@ -128,13 +128,6 @@ def bin_boxes(lower, upper, rows, lo, inv, dims, start, members):
 
 
 @ijit
-def _outside(la, ua, a, lo, hi):
-    """Box ``a`` misses the region where the two sets meet."""
-    return (ua[a, 0] < lo[0] or la[a, 0] > hi[0] or ua[a, 1] < lo[1] or la[a, 1] > hi[1]
-            or ua[a, 2] < lo[2] or la[a, 2] > hi[2])
-
-
-@ijit
 def _grid_row(la, ua, lb, ub, a, lo, hi, inv, dims, start, members, out, w, write):
     """Pairs of box ``a`` of A with the B boxes of the grid (count, or write at w)."""
     c = np.int64(0)
@@ -173,23 +166,25 @@ def _grid_row(la, ua, lb, ub, a, lo, hi, inv, dims, start, members, out, w, writ
 def grid_count(la, ua, lb, ub, rows, lo, hi, inv, dims, start, members, cnt):
     """Pairs of each box ``rows[k]`` of A with the binned boxes of B."""
     dummy = np.empty((0, 2), np.int64)
+    lo0, lo1, lo2, hi0, hi1, hi2 = lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
     for k in numba.prange(rows.shape[0]):
-        # the test ahead of the call: most boxes of A miss the region, and a
-        # call with array arguments costs more than the test
-        if _outside(la, ua, rows[k], lo, hi):
+        # the region test written out ahead of the call: most boxes of A miss the
+        # region, and a call with array arguments (inlined or not) takes and drops
+        # a reference per array, which costs more than the test
+        a = rows[k]
+        if (ua[a, 0] < lo0 or la[a, 0] > hi0 or ua[a, 1] < lo1 or la[a, 1] > hi1
+                or ua[a, 2] < lo2 or la[a, 2] > hi2):
             cnt[k] = 0
         else:
-            cnt[k] = _grid_row(la, ua, lb, ub, rows[k], lo, hi, inv, dims, start, members,
-                               dummy, 0, False)
+            cnt[k] = _grid_row(la, ua, lb, ub, a, lo, hi, inv, dims, start, members, dummy, 0,
+                               False)
 
 
 @pjit
 def grid_fill(la, ua, lb, ub, rows, lo, hi, inv, dims, start, members, off, out):
     """Write the pairs counted by :func:`grid_count` at the rows' offsets."""
-    for k in numba.prange(rows.shape[0]):
-        if not _outside(la, ua, rows[k], lo, hi):
-            _grid_row(la, ua, lb, ub, rows[k], lo, hi, inv, dims, start, members, out, off[k],
-                      True)
+    for k in numba.prange(rows.shape[0]):  # rows that found pairs only
+        _grid_row(la, ua, lb, ub, rows[k], lo, hi, inv, dims, start, members, out, off[k], True)
 
 
 # ----------------------------------------------------------------- the sweep
