@@ -281,6 +281,45 @@ class TestFeatures:
         assert len(mesh.edges) == 9  # 4 squares' sides x 2 - the shared side + 2 diagonals
 
 
+def unit_cube():
+    """The cube [0, 1]^3 as 12 triangles (each square split along a diagonal)."""
+    v = np.array(list(itertools.product((0.0, 1.0), repeat=3)))
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    faces = [f for a, b, c, d in quads for f in ((a, b, c), (a, c, d))]
+    return v, np.array(faces)
+
+
+class TestConvexMesh:
+    def test_one_contact_outside_a_cube(self):
+        # outside a convex surface the closest point is unique: one contact per
+        # sphere, at q = clip(p, 0, 1), on a face, an edge or a corner of the cube
+        rng = np.random.default_rng(13)
+        v, f = unit_cube()
+        x = rng.uniform(-0.6, 1.6, (3000, 3))
+        x = x[(np.abs(x - 0.5) > 0.5).any(axis=1)]  # outside
+        q = np.clip(x, 0, 1)
+        d = np.linalg.norm(x - q, axis=1)
+        c = WallSearch([TriangleMesh(v, f)]).update(x, 0.4)
+        want = np.flatnonzero(d <= 0.4)
+        assert c.sphere.tolist() == want.tolist()
+        np.testing.assert_allclose(c.point, q[want], atol=1e-12)
+        np.testing.assert_allclose(c.distance, d[want], rtol=1e-12, atol=1e-15)
+        outside = (np.abs(x[want] - 0.5) > 0.5).sum(axis=1)  # 1 face, 2 edge, 3 corner
+        assert (c.feature[outside == 2] == 1).all() and (c.feature[outside == 3] == 2).all()
+        assert set(c.feature[outside == 1].tolist()) <= {0, 1}  # 1: on a face's diagonal
+
+    @pytest.mark.parametrize("p, feature", [((0.5, 0.5, 1.25), 1),   # over a face diagonal
+                                            ((0.25, 0.5, 1.25), 0),
+                                            ((1.25, 0.5, 1.25), 1),  # beyond a cube edge
+                                            ((1.25, 1.25, 1.25), 2),  # beyond a corner
+                                            ((-0.25, 0.0, 0.0), 2)])  # in line with an edge
+    def test_exact_features_of_a_cube(self, p, feature):
+        v, f = unit_cube()
+        c = WallSearch([TriangleMesh(v, f)]).update([p], 0.5)
+        assert c.feature.tolist() == [feature]
+        assert c.point.tolist() == [np.clip(p, 0, 1).tolist()]
+
+
 class TestFlatTilings:
     @settings(max_examples=60, deadline=None)
     @given(st.lists(st.tuples(st.integers(1, 63), st.integers(1, 63), st.integers(-8, 8)),
