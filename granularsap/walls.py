@@ -478,6 +478,15 @@ def _match(prev_keys, keys):
     return previous, np.flatnonzero(~matched).astype(np.int64)
 
 
+def _member(values, pool):
+    """``np.isin(values, pool)`` by a sort and binary searches (int64)."""
+    if len(pool) == 0 or len(values) == 0:
+        return np.zeros(len(values), bool)
+    pool = np.sort(pool)
+    at = np.minimum(np.searchsorted(pool, values), len(pool) - 1)
+    return pool[at] == values
+
+
 def _as_ids(ids, n):
     arr = np.asarray(ids)
     if arr.dtype.kind not in "iu":
@@ -913,8 +922,8 @@ class WallSearch:
         blocked_e = (s[face][:, None] * big + face_edges[t[face]]).ravel()
         touched = face | edge
         blocked_v = (s[touched][:, None] * big + corners[t[touched]]).ravel()
-        ok[edge] &= ~np.isin(key[edge], blocked_e)
-        ok[vertex] &= ~np.isin(key[vertex], blocked_v)
+        ok[edge] &= ~_member(key[edge], blocked_e)
+        ok[vertex] &= ~_member(key[vertex], blocked_v)
         cand = np.flatnonzero(ok)
         # 3. edges and vertices once: the lowest triangle (then image) of each
         once = cand[~face[cand]]
