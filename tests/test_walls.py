@@ -58,7 +58,7 @@ def closest_on_triangle(p, a, b, c):
 
 
 def oracle_contacts(x, radii, vertices, faces, skin=0.0, shifts=((0.0, 0.0, 0.0),),
-                    vertex_key=None):
+                    vertex_key=None, combine=False):
     """Contacts of spheres with one mesh after the face / edge / vertex rule.
 
     Every triangle within reach gives its closest point; an edge (vertex)
@@ -67,10 +67,12 @@ def oracle_contacts(x, radii, vertices, faces, skin=0.0, shifts=((0.0, 0.0, 0.0)
     a face or an edge contact); each edge and vertex is kept once.
 
     ``shifts``: Cartesian translations of the mesh (its periodic images); the
-    rule is applied per image.  ``vertex_key``: the identity of each vertex
-    (default: its exact coordinates).  Returns a dict keyed by (sphere, kind,
-    feature) -> (element, distance, point) with feature the triangle, the
-    sorted vertex pair or the vertex, each as keys.
+    rule is applied per image, or over all images together with ``combine``
+    (a mesh whose images join: vertices identified by ``vertex_key``).
+    ``vertex_key``: the identity of each vertex (default: its exact
+    coordinates).  Returns a dict keyed by (sphere, kind, feature, image) ->
+    (element, distance, point) with feature the triangle, the sorted vertex
+    pair or the vertex, each as keys.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces)
@@ -81,9 +83,21 @@ def oracle_contacts(x, radii, vertices, faces, skin=0.0, shifts=((0.0, 0.0, 0.0)
     tri = vertices[faces]
     centroid = tri.mean(axis=1)
     bound = np.linalg.norm(tri - centroid[:, None], axis=2).max(axis=1)
+
+    def edge_of(t, e):
+        u, v = vertex_key[faces[t][e]], vertex_key[faces[t][(e + 1) % 3]]
+        return (min(u, v), max(u, v))
+
+    def edges(t):
+        return {edge_of(t, e) for e in range(3)}
+
+    def corners(t):
+        return {vertex_key[i] for i in faces[t]}
+
     for s in range(len(x)):
+        groups = [[] for _ in ([0] if combine else shifts)]
         for si, shift in enumerate(shifts):
-            raw = []
+            raw = groups[0 if combine else si]
             # every triangle is looked at; those whose bounding sphere is out of
             # reach (|p - centroid| - bound > h: a lower bound of the distance)
             # are skipped without computing their closest point
@@ -94,39 +108,29 @@ def oracle_contacts(x, radii, vertices, faces, skin=0.0, shifts=((0.0, 0.0, 0.0)
                 a, b, c = (vertices[i] + shift for i in f)
                 d, pt, kind, local = closest_on_triangle(x[s], a, b, c)
                 if d <= h[s]:
-                    raw.append((t, kind, local, d, pt))
+                    raw.append((t, kind, local, d, pt, si))
+        for gi, raw in enumerate(groups):
             face_tris = {r[0] for r in raw if r[1] == 0}
             touched = {r[0] for r in raw if r[1] in (0, 1)}
-
-            def edge_of(t, e):
-                u, v = vertex_key[faces[t][e]], vertex_key[faces[t][(e + 1) % 3]]
-                return (min(u, v), max(u, v))
-
-            def edges(t):
-                return {edge_of(t, e) for e in range(3)}
-
-            def corners(t):
-                return {vertex_key[i] for i in faces[t]}
-
             blocked_e = {e for t in face_tris for e in edges(t)}
             blocked_v = {v for t in touched for v in corners(t)}
             tie = 1e-9 * h[s]
-            for t, kind, local, d, pt in raw:
+            for t, kind, local, d, pt, si in raw:
                 if kind == 0:
                     key = (s, 0, t, si)
                 elif kind == 1:
                     feat = edge_of(t, local)
                     # shadowed: a triangle with this edge is closer elsewhere
-                    if feat in blocked_e or any(feat in edges(t2) and d2 < d - tie
-                                                for t2, _, _, d2, _ in raw):
+                    if feat in blocked_e or any(feat in edges(r[0]) and r[3] < d - tie
+                                                for r in raw):
                         continue
-                    key = (s, 1, feat, si)
+                    key = (s, 1, feat, gi)
                 else:
                     feat = vertex_key[faces[t][local]]
-                    if feat in blocked_v or any(feat in corners(t2) and d2 < d - tie
-                                                for t2, _, _, d2, _ in raw):
+                    if feat in blocked_v or any(feat in corners(r[0]) and r[3] < d - tie
+                                                for r in raw):
                         continue
-                    key = (s, 2, feat, si)
+                    key = (s, 2, feat, gi)
                 if key not in out or t < out[key][0]:
                     out[key] = (t, d, pt)
     return out
@@ -562,9 +566,9 @@ class TestMoving:
 # ----------------------------------------------------------------- identity
 
 
-def _oracle_keys(x, r, v, f, ids):
+def _oracle_keys(x, r, v, f, ids, **kwargs):
     """Identity keys of the oracle's contacts, in the search's row order."""
-    got = oracle_contacts(x, r, v, f)
+    got = oracle_contacts(x, r, v, f, **kwargs)
     rows = sorted(((k[0], v_[0], k[1]), (ids[k[0]], k[1], k[2])) for k, v_ in got.items())
     return [key for _, key in rows]
 
@@ -611,6 +615,35 @@ class TestIdentity:
             assert history.tolist() == want_ages
             prev_keys, prev_ages = keys, want_ages
         assert seen_kinds == {0, 1, 2}
+
+    def test_rolling_across_a_periodic_face_against_a_dict(self):
+        # a floor tiling a periodic cell; spheres roll across x = 4 = 0 and the
+        # script wraps one of them back every few steps: identity by triangle,
+        # periodic edge and periodic vertex, whatever the frame of the position
+        L = 4.0
+        v, f = grid_floor(4, 4)
+        cell = Cell.from_dimensions([L, L, 10, 90, 90, 90], pbc=(True, True, False))
+        key = [tuple(np.mod(p, [L, L, np.inf])) for p in v]
+        shifts = _image_shifts(np.diag([L, L, 10.0]), (True, True, False), m=1)
+        walls = WallSearch([TriangleMesh(v, f)], identity=True)
+        prev = None
+        ids = np.array([5, 9])
+        for step in range(48):
+            x = np.array([[3.0 + step / 16, 0.5 + step / 64, 0.25],
+                          [3.5 + step / 32, 1.0, 0.25]])
+            if step % 3 == 0:
+                x[0, 0] -= L * np.floor(x[0, 0] / L)  # the script wraps sphere 5
+            c = walls.update(x, 0.25, cell, ids=ids)
+            keys = _oracle_keys(x, 0.25, v, f, ids, shifts=shifts, vertex_key=key,
+                                combine=True)
+            assert [(int(ids[s]), int(k)) for s, k in zip(c.sphere, c.feature, strict=True)] \
+                == [(k[0], k[1]) for k in keys]
+            if prev is not None:
+                index = {k: i for i, k in enumerate(prev)}
+                assert walls.previous_rows.tolist() == [index.get(k, -1) for k in keys]
+                assert walls.ended_rows.tolist() == sorted(
+                    set(range(len(prev))) - {index[k] for k in keys if k in index})
+            prev = keys
 
     def test_wrapping_a_sphere_keeps_its_contact(self):
         v, f = grid_floor(4, 4)
