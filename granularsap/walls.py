@@ -567,7 +567,8 @@ class WallSearch:
             if not isinstance(w, (Plane, TriangleMesh)):
                 raise TypeError(f"walls[{i}] must be a Plane or a TriangleMesh, got "
                                 f"{type(w).__name__}")
-        self.walls = walls
+        #: the walls, in the order contacts name them (a tuple: fixed for the search)
+        self.walls = tuple(walls)
         self.skin = as_scalar(skin, "skin")
         if not isinstance(identity, (bool, np.bool_)):
             raise TypeError(f"identity must be True or False, got {type(identity).__name__}")
