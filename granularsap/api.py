@@ -222,6 +222,8 @@ class SweepAndPrune:
         self._last_path = None
         self._g_avoid_until = 0
         self._g_avoid_reason = ""
+        # cross-set queries: the second set, its grid and binning of the last call
+        self._cross_kept = None
 
     # ------------------------------------------------------------------ buffers
     def _ensure(self, n, parts, buckets):
@@ -306,31 +308,87 @@ class SweepAndPrune:
         return total
 
     # ------------------------------------------------------------------ update
-    def update(self, lower, upper):
+    def update(self, lower, upper, lower_b=None, upper_b=None):
         """Overlapping pairs of the boxes ``[lower, upper]`` of this frame.
 
         Parameters
         ----------
         lower, upper : (n, 3) array_like of float
             Box corners; float32 is widened exactly to float64.
+        lower_b, upper_b : (m, 3) array_like of float, optional
+            A second set: the pairs across the two sets instead (as
+            :func:`box_overlaps` with a second set).  The engine keeps the
+            second set's grid between calls while that set is unchanged (a
+            fixed reference, the triangles of a static wall), so a frame then
+            pays for the first set only.
 
         Returns
         -------
         pairs : (k, 2) ndarray of int64
             Each overlapping pair once, ``i < j`` in every row; row order is
-            unspecified.
+            unspecified.  With a second set: ``(a, b)`` rows of the first and
+            the second set, rows sorted.
 
         Raises
         ------
         ValueError
             NaN or inf, wrong shapes, mismatched lengths, or ``lower > upper``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from granularsap import SweepAndPrune
+        >>> engine = SweepAndPrune()
+        >>> floor = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+        >>> engine.update([[0.5, 0.2, -0.1]], [[0.7, 0.4, 0.1]], floor, floor + [1, 1, 0])
+        array([[0, 0]])
+        >>> engine.update([[1.5, 0.2, -0.1]], [[1.7, 0.4, 0.1]], floor, floor + [1, 1, 0])
+        array([[0, 1]])
+        >>> engine.stats["second_set_kept"]
+        True
         """
+        if lower_b is not None or upper_b is not None:
+            return self._update_cross(lower, upper, lower_b, upper_b)
         lower, upper = _check_boxes(lower, upper)
         threads = self.n_threads
         if threads is None and self._partitions is None and len(lower) < _PARALLEL_MIN:
             threads = 1  # a parallel region costs more than the whole job
         with num_threads(threads) as threads:
             return self._update(lower, upper, threads)
+
+    def _update_cross(self, lower, upper, lower_b, upper_b):
+        t_start = time.perf_counter()
+        lower, upper = _check_boxes(lower, upper)
+        lower_b, upper_b = _second_set(lower_b, upper_b)
+        n, m = len(lower), len(lower_b)
+        threads = self.n_threads
+        if threads is None and n + m < _PARALLEL_MIN:
+            threads = 1
+        self._frame += 1
+        kept = False
+        with num_threads(threads) as threads:
+            kern = _cross if threads > 1 else _cross.serial
+            plan = None if n == 0 or m == 0 else _cross_grid_plan(lower, upper, lower_b,
+                                                                  upper_b, kept=True)
+            if plan is None:
+                pairs = np.empty((0, 2), np.int64)
+            else:
+                c = self._cross_kept
+                kept = (c is not None and all(np.array_equal(a, b) for a, b in zip(
+                    c[2], plan, strict=True)) and np.array_equal(c[0], lower_b)
+                        and np.array_equal(c[1], upper_b))
+                if kept:
+                    binned = c[3]
+                else:
+                    binned = _cross_bin(kern, lower_b, upper_b, plan)
+                    self._cross_kept = (lower_b.copy(), upper_b.copy(), plan, binned)
+                pairs = _cross_query(kern, lower, upper, lower_b, upper_b, plan, binned)
+        total = time.perf_counter() - t_start
+        self.stats = {"frame": self._frame, "n": n, "n_b": m, "threads": threads,
+                      "path": "cross", "path_reason": "a second set of boxes was given",
+                      "second_set_kept": bool(kept), "pairs": len(pairs),
+                      "seconds": {"total": total}}
+        return pairs
 
     def _update(self, lower, upper, threads):
         t_start = time.perf_counter()
@@ -897,21 +955,32 @@ def _cross_sweep(kern, lower, upper, lower_b, upper_b, rows_a, rows_b):
     return out
 
 
-def _cross_grid_plan(lower, upper, lower_b, upper_b):
-    """Region where both sets' spans meet, its grid (lower corner, inverse cell
-    sides, cells per axis), or None when no box can overlap."""
+def _cross_grid_plan(lower, upper, lower_b, upper_b, *, kept=False):
+    """The grid of the cross-set query: (lower corner, upper corner, inverse cell
+    sides, cells per axis), or None when no box can overlap.
+
+    One call (``kept=False``) grids the region where both sets' spans meet.
+    A kept second set (``kept=True``, ``SweepAndPrune``) grids the second
+    set's own span with cell sides rounded up to a power of two, so that the
+    grid, and the second set's binning, stay while that set does.
+    """
     lo_a, hi_a, side_a = np.empty(3), np.empty(3), np.empty(3)
     lo_b, hi_b, side_b = np.empty(3), np.empty(3), np.empty(3)
     _cross.extent(lower, upper, lo_a, hi_a, side_a)
     _cross.extent(lower_b, upper_b, lo_b, hi_b, side_b)
-    lo = np.maximum(lo_a, lo_b)
-    hi = np.minimum(hi_a, hi_b)
-    if (lo > hi).any():
+    if (np.maximum(lo_a, lo_b) > np.minimum(hi_a, hi_b)).any():
         return None
-    n_all = len(lower) + len(lower_b)
+    if kept:
+        lo, hi = lo_b, hi_b
+        n_all = 2 * len(lower_b)
+    else:
+        lo, hi = np.maximum(lo_a, lo_b), np.minimum(hi_a, hi_b)
+        n_all = len(lower) + len(lower_b)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         ext = hi - lo
         side = np.maximum(side_a, side_b)
+        if kept:
+            side = np.where(side > 0, np.exp2(np.ceil(np.log2(side))), side)
         dims = np.ones(3)
         for c in range(3):
             if not (ext[c] > 0 and np.isfinite(ext[c])):
@@ -929,30 +998,32 @@ def _cross_grid_plan(lower, upper, lower_b, upper_b):
     return lo, hi, inv, dims
 
 
-def _cross_overlaps(lower, upper, lower_b, upper_b, threads):
-    """Pairs (a, b) of overlapping boxes of two validated sets, rows sorted."""
-    n, m = lower.shape[0], lower_b.shape[0]
-    if n == 0 or m == 0:
-        return np.empty((0, 2), np.int64)
-    kern = _cross if threads > 1 else _cross.serial
-    plan = _cross_grid_plan(lower, upper, lower_b, upper_b)
-    if plan is None:
-        return np.empty((0, 2), np.int64)
+def _cross_bin(kern, lower_b, upper_b, plan):
+    """The second set's boxes by cell of the grid ``plan`` (those spanning more
+    than ``_CROSS_MAX_SPAN`` cells apart, for the sweep)."""
     lo, hi, inv, dims = plan
-    span_b = np.empty(m, np.int64)
-    span_a = np.empty(n, np.int64)
+    span_b = np.empty(len(lower_b), np.int64)
     kern.spans(lower_b, upper_b, lo, inv, dims, span_b)
+    big = span_b > _CROSS_MAX_SPAN
+    small = np.flatnonzero(~big)
+    start = np.zeros(int(np.prod(dims)) + 1, np.int64)
+    members = np.empty(int(span_b[small].sum()), np.int64)
+    if len(small):
+        _cross.bin_boxes(lower_b, upper_b, small, lo, inv, dims, start, members)
+    return small, np.flatnonzero(big), start, members
+
+
+def _cross_query(kern, lower, upper, lower_b, upper_b, plan, binned):
+    """Pairs (a, b), rows sorted, of the first set against the binned second."""
+    n, m = lower.shape[0], lower_b.shape[0]
+    lo, hi, inv, dims = plan
+    small_b, big_b, start, members = binned
+    span_a = np.empty(n, np.int64)
     kern.spans(lower, upper, lo, inv, dims, span_a)
-    big_b = span_b > _CROSS_MAX_SPAN
     big_a = span_a > _CROSS_MAX_VISIT
-    small_b = np.flatnonzero(~big_b)
     small_a = np.flatnonzero(~big_a)
     parts = []
     if len(small_a) and len(small_b):
-        ncell = int(np.prod(dims))
-        start = np.zeros(ncell + 1, np.int64)
-        members = np.empty(int(span_b[small_b].sum()), np.int64)
-        _cross.bin_boxes(lower_b, upper_b, small_b, lo, inv, dims, start, members)
         cnt = np.empty(len(small_a), np.int64)
         kern.grid_count(lower, upper, lower_b, upper_b, small_a, lo, hi, inv, dims, start,
                         members, cnt)
@@ -965,17 +1036,37 @@ def _cross_overlaps(lower, upper, lower_b, upper_b, threads):
             kern.grid_fill(lower, upper, lower_b, upper_b, small_a[found], lo, hi, inv, dims,
                            start, members, off[:-1], out)
         parts.append(out)
-    parts.append(_cross_sweep(kern, lower, upper, lower_b, upper_b, np.arange(n),
-                              np.flatnonzero(big_b)))
+    parts.append(_cross_sweep(kern, lower, upper, lower_b, upper_b, np.arange(n), big_b))
     parts.append(_cross_sweep(kern, lower, upper, lower_b, upper_b, np.flatnonzero(big_a),
                               small_b))
-    out = np.concatenate(parts) if len(parts) > 1 else parts[0]
+    out = np.concatenate(parts)
     if len(out) > 1:
         if n * m < (1 << 62):
             out = out[np.argsort(out[:, 0] * m + out[:, 1], kind="stable")]
         else:  # pragma: no cover - more than 2**31 boxes in each set
             out = out[np.lexsort((out[:, 1], out[:, 0]))]
     return out
+
+
+def _cross_overlaps(lower, upper, lower_b, upper_b, threads):
+    """Pairs (a, b) of overlapping boxes of two validated sets, rows sorted."""
+    if lower.shape[0] == 0 or lower_b.shape[0] == 0:
+        return np.empty((0, 2), np.int64)
+    kern = _cross if threads > 1 else _cross.serial
+    plan = _cross_grid_plan(lower, upper, lower_b, upper_b)
+    if plan is None:
+        return np.empty((0, 2), np.int64)
+    binned = _cross_bin(kern, lower_b, upper_b, plan)
+    return _cross_query(kern, lower, upper, lower_b, upper_b, plan, binned)
+
+
+def _second_set(lower_b, upper_b):
+    """Both corners of the second set validated, or a ValueError naming the missing one."""
+    if lower_b is None or upper_b is None:
+        given, missing = ("lower_b", "upper_b") if upper_b is None else ("upper_b", "lower_b")
+        raise ValueError(f"{given} was given without {missing}; give both corners of the "
+                         "second set, or neither for pairs within one set")
+    return _check_boxes(lower_b, upper_b, ("lower_b", "upper_b"))
 
 
 def box_overlaps(lower, upper, lower_b=None, upper_b=None, *, n_threads=None):
@@ -1028,13 +1119,9 @@ def box_overlaps(lower, upper, lower_b=None, upper_b=None, *, n_threads=None):
     """
     if lower_b is None and upper_b is None:
         return SweepAndPrune(n_threads=n_threads).update(lower, upper)
-    if lower_b is None or upper_b is None:
-        given, missing = ("lower_b", "upper_b") if upper_b is None else ("upper_b", "lower_b")
-        raise ValueError(f"{given} was given without {missing}; give both corners of the "
-                         "second set, or neither for pairs within one set")
     threads = check_n_threads(n_threads)
     lower, upper = _check_boxes(lower, upper)
-    lower_b, upper_b = _check_boxes(lower_b, upper_b, ("lower_b", "upper_b"))
+    lower_b, upper_b = _second_set(lower_b, upper_b)
     if threads is None and len(lower) + len(lower_b) < _PARALLEL_MIN:
         threads = 1
     with num_threads(threads) as threads:

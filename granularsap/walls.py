@@ -10,7 +10,7 @@ Algorithm (docs/walls.md):
 
 * broad phase through the box engine: the boxes ``centre +- (r + skin)`` of
   the spheres against the boxes of the triangles (the cross-set query of
-  :func:`granularsap.box_overlaps`);
+  :class:`granularsap.SweepAndPrune`, which keeps a static mesh's grid);
 * narrow phase: the exact closest point of each candidate triangle
   (Ericson's ``ClosestPtPointTriangle``, ``kernels/triangles.py``), which
   also tells the feature it lies on: the face, an edge or a vertex;
@@ -41,7 +41,7 @@ import numpy as np
 
 from ._numba import num_threads
 from ._validate import as_coords, as_scalar, as_vector, check_n_threads
-from .api import box_overlaps
+from .api import SweepAndPrune
 from .cell import Cell
 from .kernels import triangles as _tri
 
@@ -575,6 +575,7 @@ class WallSearch:
         self.identity = bool(identity)
         self.n_threads = check_n_threads(n_threads)
         self._geo = {}
+        self._engines = {}
         self._keys = None
         self._previous_rows = None
         self._ended_rows = None
@@ -844,7 +845,12 @@ class WallSearch:
         scale = max(float(np.abs(xw).max()), top)
         pad = h + _GUARD * (np.abs(h) + scale)
         with num_threads(threads) as used:
-            cand = box_overlaps(xw - pad[:, None], xw + pad[:, None], tlo, thi, n_threads=used)
+            engine = self._engines.get(w)
+            if engine is None:
+                engine = self._engines[w] = SweepAndPrune()
+            engine.n_threads = used
+            # the engine keeps the triangles' grid while they do not move
+            cand = engine.update(xw - pad[:, None], xw + pad[:, None], tlo, thi)
             k = len(cand)
             dist = np.empty(k)
             point = np.empty((k, 3))

@@ -885,6 +885,35 @@ class TestCrossBoxes:
             np.testing.assert_array_equal(box_overlaps(la, ua, lb, ub),
                                           brute_cross(la, ua, lb, ub))
 
+    @pytest.mark.parametrize("n_threads", [1, 2])
+    def test_kept_second_set_across_frames(self, n_threads):
+        # SweepAndPrune keeps the second set's grid while it does not change;
+        # every frame equals the brute force whether it was kept or rebuilt
+        rng = np.random.default_rng(14)
+        engine = granularsap.SweepAndPrune(n_threads=n_threads)
+        lb = rng.uniform(0, 10, (500, 3))
+        ub = lb + rng.uniform(0, 0.6, lb.shape)
+        la = rng.uniform(0, 10, (800, 3))
+        kept = []
+        for frame in range(8):
+            la = la + rng.normal(0, 0.05, la.shape)
+            ua = la + 0.4
+            if frame == 5:
+                lb = lb + 0.01  # the second set moved: binned again
+                ub = ub + 0.01
+            got = engine.update(la, ua, lb, ub)
+            np.testing.assert_array_equal(got, brute_cross(la, ua, lb, ub))
+            kept.append(engine.stats["second_set_kept"])
+            assert engine.stats["path"] == "cross"
+        assert kept == [False, True, True, True, True, False, True, True]
+        # and the engine still answers within one set
+        within = engine.update(la, ua)
+        within = within[np.lexsort((within[:, 1], within[:, 0]))]
+        ref = box_overlaps(la, ua)
+        np.testing.assert_array_equal(within, ref[np.lexsort((ref[:, 1], ref[:, 0]))])
+        with pytest.raises(ValueError, match="upper_b was given without lower_b"):
+            engine.update(la, ua, upper_b=ub)
+
     def test_errors_name_the_second_set(self):
         ok = np.zeros((2, 3))
         with pytest.raises(ValueError, match="lower_b must not exceed upper_b, got "
