@@ -43,6 +43,7 @@ from ._numba import num_threads
 from ._validate import as_coords, as_scalar, as_vector, check_n_threads
 from .api import SweepAndPrune
 from .cell import Cell
+from .identity import ContactIdentity
 from .kernels import triangles as _tri
 
 __all__ = ["Plane", "TriangleMesh", "WallContacts", "WallSearch"]
@@ -459,25 +460,6 @@ def _empty_contacts():
 _KEY_COLUMNS = 6
 
 
-def _match(prev_keys, keys):
-    """Row of each key in ``prev_keys`` (or -1), and the rows of ``prev_keys`` not
-    matched.  Keys are unique within each array."""
-    kp, kc = len(prev_keys), len(keys)
-    previous = np.full(kc, -1, np.int64)
-    if kp == 0 or kc == 0:
-        return previous, np.arange(kp, dtype=np.int64)
-    both = np.concatenate((prev_keys, keys))
-    src = np.concatenate((np.zeros(kp, np.int64), np.ones(kc, np.int64)))
-    row = np.concatenate((np.arange(kp), np.arange(kc)))
-    order = np.lexsort((src,) + tuple(both[:, c] for c in reversed(range(_KEY_COLUMNS))))
-    s = both[order]
-    same = np.flatnonzero((s[1:] == s[:-1]).all(axis=1))
-    previous[row[order[same + 1]]] = row[order[same]]
-    matched = np.zeros(kp, bool)
-    matched[row[order[same]]] = True
-    return previous, np.flatnonzero(~matched).astype(np.int64)
-
-
 def _member(values, pool):
     """``np.isin(values, pool)`` by a sort and binary searches (int64)."""
     if len(pool) == 0 or len(values) == 0:
@@ -528,8 +510,9 @@ class WallSearch:
 
     Notes
     -----
-    Identity: a contact continues when it has the same sphere (by ``ids``,
-    by row without), the same wall and the same feature: the triangle for a
+    Identity (matched by :class:`granularsap.identity.ContactIdentity` on
+    integer keys): a contact continues when it has the same sphere (by
+    ``ids``, by row without), the same wall and the same feature: the triangle for a
     face contact, the edge (its two vertices) for an edge contact, the
     vertex for a vertex contact, so a sphere rolling from one triangle onto
     the next starts a new contact (as in LAMMPS's and LIGGGHTS's mesh walls).
@@ -576,48 +559,56 @@ class WallSearch:
         self.n_threads = check_n_threads(n_threads)
         self._geo = {}
         self._engines = {}
-        self._keys = None
-        self._previous_rows = None
-        self._ended_rows = None
-        self._count = 0
+        # contacts matched across calls by their integer keys (granularsap.identity)
+        self._tracker = ContactIdentity(n_threads=self.n_threads) if self.identity else None
         #: per call: spheres, candidates tested, contacts, threads
         self.stats = {}
 
     # ------------------------------------------------------------ identity
+    def _identity_state(self):
+        if self._tracker is None:
+            raise ValueError("contact identity needs WallSearch(..., identity=True)")
+        return self._tracker
+
     @property
     def previous_rows(self):
         """(k,) int64: row of each contact of the last call in the call before
-        it, or -1 for a new contact (``identity=True``)."""
-        self._need_identity("previous_rows")
-        return self._previous_rows
+        it, or -1 for a new contact (``identity=True``; None before the first
+        call)."""
+        return self._identity_state().previous_rows
 
     @property
     def ended_rows(self):
         """(m,) int64: rows of the call before the last whose contacts did not
-        continue (``identity=True``)."""
-        self._need_identity("ended_rows")
-        return self._ended_rows
+        continue, ascending (``identity=True``)."""
+        return self._identity_state().ended_rows
 
-    def carry(self, h_prev, fill=0.0):
-        """A history array moved from the previous call's rows to the last's.
+    def carry(self, history, fill=0.0, out=None):
+        """A history array of the previous call's contacts, moved to the last's rows.
+
+        As ``ContactSearch.carry`` (one gather, by
+        :class:`granularsap.identity.ContactIdentity`).
 
         Parameters
         ----------
-        h_prev : (k_prev, ...) array_like
+        history : (k_prev, ...) array_like
             One row per contact of the previous call.
-        fill : scalar
-            Value of the rows of new contacts.
+        fill : scalar or array_like, optional
+            Value of the rows of new contacts (default 0).
+        out : (k, ...) ndarray, optional
+            Where to write (same dtype, not overlapping ``history``).
 
         Returns
         -------
-        h : (k, ...) ndarray
-            ``h_prev[previous_rows]``, ``fill`` where ``previous_rows == -1``;
-            the dtype of ``h_prev``.
+        (k, ...) ndarray
+            ``history[previous_rows]``, ``fill`` where ``previous_rows == -1``;
+            the dtype of ``history``.
 
         Raises
         ------
         ValueError
-            ``h_prev`` does not have one row per contact of the previous call.
+            No ``identity=True``, no call yet, or ``history`` without one row per
+            contact of the previous call.
 
         Examples
         --------
@@ -630,23 +621,7 @@ class WallSearch:
         >>> walls.previous_rows.tolist(), walls.carry(ages, fill=0).tolist()
         ([1, -1], [7, 0])
         """
-        self._need_identity("carry")
-        h_prev = np.asarray(h_prev)
-        if h_prev.ndim == 0 or h_prev.shape[0] != self._prev_count:
-            got = h_prev.shape[0] if h_prev.ndim else "a scalar"
-            raise ValueError(f"h_prev must have one row per contact of the previous call "
-                             f"({self._prev_count}), got {got}")
-        prev = self._previous_rows
-        out = np.full((len(prev),) + h_prev.shape[1:], fill, dtype=h_prev.dtype)
-        live = prev >= 0
-        out[live] = h_prev[prev[live]]
-        return out
-
-    def _need_identity(self, name):
-        if not self.identity:
-            raise ValueError(f"{name} needs WallSearch(..., identity=True)")
-        if self._previous_rows is None:
-            raise ValueError(f"{name} is known after the first update()")
+        return self._identity_state().carry(history, fill, out)
 
     # ------------------------------------------------------------ update
     def update(self, positions, radii, box=None, *, pbc=None, ids=None, vertices=None):
@@ -964,11 +939,4 @@ class WallSearch:
                 start = np.flatnonzero(~same)
                 run = np.repeat(start, np.diff(np.append(start, k)))
                 keys[order, 5] = np.arange(k) - run
-        if self._keys is None:
-            self._previous_rows = np.full(k, -1, np.int64)
-            self._ended_rows = np.empty(0, np.int64)
-            self._prev_count = 0
-        else:
-            self._previous_rows, self._ended_rows = _match(self._keys, keys)
-            self._prev_count = len(self._keys)
-        self._keys = keys
+        self._tracker.update(keys)

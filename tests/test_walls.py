@@ -658,24 +658,37 @@ class TestIdentity:
 
     def test_first_call_and_carry_fill(self):
         walls = WallSearch([Plane([0, 0, 0], [0, 0, 1])], identity=True)
-        with pytest.raises(ValueError, match="known after the first update"):
-            _ = walls.previous_rows
+        assert walls.previous_rows is None  # as ContactSearch before its first call
+        with pytest.raises(ValueError, match="carry needs a previous update"):
+            walls.carry(np.zeros(0))
         walls.update([[0, 0, 0.1], [0, 0, 5]], 0.5)
         assert walls.previous_rows.tolist() == [-1] and walls.ended_rows.tolist() == []
         h = np.array([[1.0, 2.0, 3.0]])
         walls.update([[0, 0, 0.2], [0, 0, 0.3]], 0.5)
         np.testing.assert_array_equal(walls.carry(h, fill=-1.0), [[1, 2, 3], [-1, -1, -1]])
-        with pytest.raises(ValueError, match=r"h_prev must have one row per contact of the "
-                                             r"previous call \(1\), got 3"):
+        out = np.empty((2, 3))
+        assert walls.carry(h, out=out) is out
+        with pytest.raises(ValueError, match=r"history must have one row per contact of the "
+                                             r"previous call's result \(1 rows\)"):
             walls.carry(np.zeros(3))
+
+    def test_previous_rows_survive_the_next_call(self):
+        # as the searches' results: valid and unchanged until the call after next
+        walls = WallSearch([Plane([0, 0, 0], [0, 0, 1])], identity=True)
+        walls.update([[0, 0, 0.1], [1, 0, 0.1]], 0.5)
+        walls.update([[1, 0, 0.1], [2, 0, 0.1], [0, 0, 0.1]], 0.5, ids=[1, 2, 0])
+        rows = walls.previous_rows
+        kept = rows.copy()
+        walls.update([[5, 0, 0.1]], 0.5, ids=[7])
+        np.testing.assert_array_equal(rows, kept)
 
     def test_identity_off(self):
         walls = WallSearch([Plane([0, 0, 0], [0, 0, 1])])
         walls.update([[0, 0, 0.1]], 0.5)
-        with pytest.raises(ValueError, match=r"previous_rows needs WallSearch\(\.\.\., "
+        with pytest.raises(ValueError, match=r"contact identity needs WallSearch\(\.\.\., "
                                              r"identity=True\)"):
             _ = walls.previous_rows
-        with pytest.raises(ValueError, match="carry needs"):
+        with pytest.raises(ValueError, match="contact identity needs"):
             walls.carry(np.zeros(1))
 
 
