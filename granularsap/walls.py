@@ -14,7 +14,9 @@ Algorithm (docs/walls.md):
 * narrow phase: the exact closest point of each candidate triangle
   (Ericson's ``ClosestPtPointTriangle``, ``kernels/triangles.py``), which
   also tells the feature it lies on: the face, an edge or a vertex;
-* de-duplication for one sphere and one mesh as DEM codes do it: a face
+* de-duplication for one sphere and one mesh as DEM codes do it: an edge or
+  vertex point is dropped when a triangle having that edge or vertex is
+  closer to the centre elsewhere (no local minimum of the distance); a face
   contact always counts; an edge contact counts when no triangle having that
   edge has a face contact with the sphere, once per edge; a vertex contact
   counts when no triangle having that vertex has a face or an edge contact
@@ -512,10 +514,11 @@ class WallSearch:
     -----
     Identity (matched by :class:`granularsap.identity.ContactIdentity` on
     integer keys): a contact continues when it has the same sphere (by
-    ``ids``, by row without), the same wall and the same feature: the triangle for a
-    face contact, the edge (its two vertices) for an edge contact, the
-    vertex for a vertex contact, so a sphere rolling from one triangle onto
-    the next starts a new contact (as in LAMMPS's and LIGGGHTS's mesh walls).
+    ``ids``, by row without), the same wall and the same feature: the
+    triangle for a face contact, the edge (its two vertices) for an edge
+    contact, the vertex for a vertex contact, so a sphere rolling from one
+    triangle onto the next starts a new contact (a history per triangle, as
+    LIGGGHTS's mesh walls keep it).
     A sphere wrapped back into the cell by the caller keeps its contacts
     (under the minimum image a feature touches a sphere once); when a sphere
     touches two periodic images of one feature (a reach over half the cell),
