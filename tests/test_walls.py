@@ -816,6 +816,13 @@ class TestErrors:
         assert all(len(a) == 0 for a in c)
         assert c.normal.shape == (0, 3) and c.sphere.dtype == np.int64
         assert walls.previous_rows.tolist() == []
+        # contacts, none, contacts again: every row ends, then every row is new
+        walls.update([[0.5, 0.25, 0.1]], 0.2)
+        walls.update(np.empty((0, 3)), 0.2)
+        assert walls.previous_rows.tolist() == [] and walls.ended_rows.tolist() == [0, 1]
+        assert walls.carry(np.ones(2)).shape == (0,)
+        walls.update([[0.5, 0.25, 0.1]], 0.2)
+        assert walls.previous_rows.tolist() == [-1, -1] and walls.ended_rows.tolist() == []
 
 
 # ----------------------------------------------------------------- cross-set boxes
