@@ -171,7 +171,7 @@ class Pour:
     :meth:`contact_forces`: ``pairs`` and ``spring`` (the grain contacts and
     their tangential springs, row for row), ``wall_contacts`` and
     ``wall_spring``, and ``search_seconds``, the time of the two searches and
-    the two history gathers.
+    the two history gathers (``wall_seconds`` of it for the walls).
     """
 
     def __init__(self, positions, velocities, radii, width, floor, *, material=None,
@@ -195,7 +195,7 @@ class Pour:
         self.pairs = np.empty((0, 2), np.int64)
         self.spring = np.empty((0, 3))
         self.wall_spring = np.empty((0, 3))
-        self.search_seconds = 0.0
+        self.search_seconds = self.wall_seconds = 0.0
         self.force, self.torque = self.contact_forces()
 
     def contact_forces(self):
@@ -204,9 +204,11 @@ class Pour:
         t0 = time.perf_counter()
         pairs, dist, vec = self.search.update(x, r, ids=self.ids)
         spring = self.search.carry(self.spring)
+        t1 = time.perf_counter()
         c = self.walls.update(x, r, ids=self.ids)
         wall_spring = self.walls.carry(self.wall_spring)
         self.search_seconds = time.perf_counter() - t0
+        self.wall_seconds = self.search_seconds - (t1 - t0)
 
         force = m[:, None] * GRAVITY
         torque = np.zeros_like(x)

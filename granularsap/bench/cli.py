@@ -9,7 +9,9 @@ fresh call of stateful peers beside their steady state (median over repeated
 runs or trajectory frames after a warm-up), peer/granularsap ratio,
 candidates tested per pair found, peak memory, pairs and threads.  --json and
 --plot write the full report and PNG plots.  Workload ``paper`` runs the
-engine's own reproduction of the paper's experiments instead.  The reference
+engine's own reproduction of the paper's experiments instead, and
+``dem-loop`` a DEM time loop (search + contact history per step) against
+LAMMPS's ``pair_style granular`` on the same pour.  The reference
 is docs/bench.md.
 
 examples:
@@ -18,6 +20,7 @@ examples:
   granularsap bench md-liquid --sizes 1e5 --peers lammps-rebuild,numba-celllist,vesin
   granularsap bench all --json bench.json --plot bench.png
   granularsap bench paper --quick
+  granularsap bench dem-loop --sizes 2000 --steps 1000
 """
 
 from __future__ import annotations
@@ -105,6 +108,11 @@ def add_arguments(parser):
                         help="directory of real trajectories for the 'data' workload")
     parser.add_argument("--cutoff", type=float, default=None,
                         help="cutoff for data/ files without radii (default 2.8)")
+    parser.add_argument("--steps", type=int, default=None, metavar="S",
+                        help="dem-loop: timed time steps (default 1000, 200 with --quick)")
+    parser.add_argument("--settle", type=int, default=None, metavar="S",
+                        help="dem-loop: untimed LAMMPS steps that settle the pour first "
+                        "(default 10000, 2000 with --quick)")
     parser.add_argument("--list", action="store_true",
                         help="list workloads and peers (with availability) and exit")
 
@@ -279,6 +287,14 @@ def _run_paper(args):
     return int(run_paper(args) or 0)
 
 
+def _run_dem_loop(args):
+    from .demloop import run_dem_loop
+
+    args.dem_sizes = sorted({parse_size(s) for s in _split(args.sizes)}) if args.sizes else None
+    args.threads = args.threads or _usable_cores()
+    return int(run_dem_loop(args) or 0)
+
+
 def run(args) -> int:
     from .peers import GRANULARSAP, PEERS, make_peers
 
@@ -293,6 +309,10 @@ def run(args) -> int:
         if len(args.workloads) > 1:
             raise ValueError("run 'paper' on its own: granularsap bench paper [options]")
         return _run_paper(args)
+    if "dem-loop" in args.workloads:
+        if len(args.workloads) > 1:
+            raise ValueError("run 'dem-loop' on its own: granularsap bench dem-loop [options]")
+        return _run_dem_loop(args)
     names = _split([args.peers]) if args.peers else list(PEERS)
     for g in reversed(GRANULARSAP):
         if g not in names:

@@ -309,8 +309,9 @@ WORKLOADS = {
     "trajectory": (trajectory, [100_000], [5_000]),
 }
 
-#: every name the bench command accepts (``paper`` is the engine's own benchmark)
-WORKLOAD_NAMES = [*WORKLOADS, "data", "paper"]
+#: every name the bench command accepts (``paper`` is the engine's own benchmark,
+#: ``dem-loop`` a DEM time loop against LAMMPS: granularsap.bench.demloop)
+WORKLOAD_NAMES = [*WORKLOADS, "data", "paper", "dem-loop"]
 
 
 def make(name, n, *, seed=0, density=0.35, n_frames=50):

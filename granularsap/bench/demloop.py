@@ -1,0 +1,333 @@
+"""``granularsap bench dem-loop``: a DEM time loop, granularsap against LAMMPS on one pour.
+
+The pour is that of ``examples/dem_hertz_mindlin.py``: polydisperse spheres
+(radii 0.5 to 1) falling from a jittered lattice in a square column with four
+side walls onto a floor, Hertz-Mindlin contacts with tangential springs
+(``pair_style granular hertz/material ... tangential mindlin``), gravity,
+velocity Verlet with rotation, ``dt`` 5e-4, a Verlet margin (LAMMPS's
+neighbour skin) of 0.2.
+
+1. LAMMPS runs the pour from the column: ``pair_style granular`` with the
+   example's coefficients, ``fix wall/gran granular`` for the floor
+   (``zplane``) and the sides, ``neighbor 0.2 bin``, ``neigh_modify delay 0
+   every 1 check yes``, ``package omp T`` / ``suffix omp`` when the build has
+   OPENMP (the neighbour build is then threaded; ``pair granular`` has no
+   threaded variant), LAMMPS's defaults otherwise (atom sort every 1000 steps).
+   It first settles the pour for ``--settle`` steps (untimed), then runs
+   ``--steps`` more in one ``run``, timed by its own timers: the ``Neigh``,
+   ``Pair``, ``Modify`` and ``Comm`` sections of that run's breakdown, per step.
+2. granularsap steps the example's ``Pour`` from the state LAMMPS had at the
+   start of that timed run (positions, velocities, spins, by atom id) for the
+   same number of steps, re-ordering the grains spatially every 1000 steps as
+   LAMMPS does, and records each step's ``search_seconds``: the grain
+   ``ContactSearch.update`` with ids, ``ContactSearch.carry`` of the springs,
+   ``WallSearch.update`` (four planes and the floor as a triangle mesh) and
+   ``WallSearch.carry``.  Min, median and mean per step; the contact law and
+   the integration are not in the figure.
+
+LAMMPS's ``Neigh`` is the neighbour-list builds only (it re-tests no pair on
+the steps between builds: ``pair granular`` computes every listed pair's
+distance in ``Pair``), and it keeps the contact history inside ``fix
+NEIGH_HISTORY`` (counted in ``Modify``, with the walls and the integration).
+The ratio printed is granularsap's mean search + history per step over
+LAMMPS's ``Neigh`` per step, and over ``Neigh + Pair``.
+
+The pour's definition lives in the example, which ships with a source
+checkout (like ``data/``): the runner loads ``examples/dem_hertz_mindlin.py``
+from the checkout that holds this package, or from the current directory.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+#: grains of the default and the --quick run
+SIZES, QUICK_SIZES = (2_000, 10_000), (1_000,)
+#: timed steps, and untimed settling steps before them (default, --quick)
+STEPS, QUICK_STEPS = 1_000, 200
+SETTLE, QUICK_SETTLE = 10_000, 2_000
+#: LAMMPS's default atom sort interval, used for granularsap's re-ordering too
+SORT_EVERY = 1000
+#: the Verlet margin of both codes (LAMMPS: neighbor 0.2 bin)
+MARGIN = 0.2
+GRAVITY = 10.0
+EXAMPLE = Path("examples") / "dem_hertz_mindlin.py"
+
+
+def load_example(path=None):
+    """The example module that defines the pour (``Pour``, ``initial_column``, ...).
+
+    Looks in the checkout that holds this package, then under the current
+    directory, unless ``path`` is given.
+
+    Raises
+    ------
+    FileNotFoundError
+        When the example is in neither place (an installed wheel without a
+        checkout).
+    """
+    if path is None:
+        here = Path(__file__).resolve().parents[2] / EXAMPLE
+        path = here if here.is_file() else Path.cwd() / EXAMPLE
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"dem-loop steps the pour of {EXAMPLE}, which is not at {path}; "
+                                "run it from a source checkout of granularsap")
+    name = "granularsap_bench_dem_example"
+    if name in sys.modules and getattr(sys.modules[name], "__file__", None) == str(path):
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up while the file runs
+    spec.loader.exec_module(module)
+    return module
+
+
+def _log_breakdown(path):
+    """``({section: seconds}, neighbour list builds)`` of the last run in a LAMMPS log."""
+    with open(path) as fh:
+        lines = fh.read().splitlines()
+    head = max((k for k, line in enumerate(lines) if line.startswith("Section |")), default=None)
+    if head is None:
+        raise RuntimeError(f"LAMMPS wrote no timer breakdown to {path}")
+    sections = {}
+    for line in lines[head + 2:]:
+        cols = [c.strip() for c in line.split("|")]
+        if len(cols) < 3 or not cols[0]:
+            break
+        sections[cols[0]] = float(cols[2])
+    builds = None
+    for line in lines[head:]:
+        if line.startswith("Neighbor list builds"):
+            builds = int(line.split("=")[1])
+    return sections, builds
+
+
+class LammpsPour:
+    """The example's pour in one LAMMPS instance (``pair_style granular``)."""
+
+    def __init__(self, example, positions, velocities, radii, width, *, n_threads, dt):
+        import lammps_bridge
+
+        self.folder = tempfile.mkdtemp(prefix="granularsap-bench-dem-")
+        self.log = os.path.join(self.folder, "log.lammps")
+        self.lmp = lammps_bridge.new_lammps(cmdargs=["-log", self.log, "-screen", "none"],
+                                            quiet=False)
+        self.omp = bool(self.lmp.has_package("OPENMP"))
+        self.n = len(radii)
+        material = example.Material()
+        model = material.lammps()
+        top = float(positions[:, 2].max() + 4.0 * float(radii.max()))
+        w = float(width)
+        cmds = [f"package omp {int(n_threads)}", "suffix omp"] if self.omp else []
+        cmds += ["units lj", "atom_style sphere", "atom_modify map array", "boundary f f f",
+                 "comm_modify vel yes",
+                 f"region box block 0 {w!r} 0 {w!r} -1.0 {top!r} units box", "create_box 1 box",
+                 "pair_style granular", f"pair_coeff * * {model}",
+                 f"neighbor {MARGIN!r} bin", "neigh_modify delay 0 every 1 check yes",
+                 f"timestep {float(dt)!r}"]
+        try:
+            for c in cmds:
+                self.lmp.command(c)
+            n = self.n
+            created = self.lmp.create_atoms(n, list(range(1, n + 1)), [1] * n,
+                                            np.asarray(positions, float).ravel().tolist(),
+                                            v=np.asarray(velocities, float).ravel().tolist())
+            if created != n:
+                raise RuntimeError(f"LAMMPS created {created} of {n} grains")
+            tag = self._tags()
+            mass = material.density * 4.0 / 3.0 * np.pi * radii ** 3
+            self.lmp.numpy.extract_atom("radius", nelem=n)[:n] = radii[tag]
+            self.lmp.numpy.extract_atom("rmass", nelem=n)[:n] = mass[tag]
+            for c in [f"fix floor all wall/gran granular {model} zplane 0.0 NULL",
+                      f"fix side_x all wall/gran granular {model} xplane 0.0 {w!r}",
+                      f"fix side_y all wall/gran granular {model} yplane 0.0 {w!r}",
+                      "fix move all nve/sphere",
+                      f"fix gravity all gravity {GRAVITY!r} vector 0 0 -1",
+                      "compute contacts all contact/atom", "thermo 0"]:
+                self.lmp.command(c)
+        except Exception:
+            self.close()
+            raise
+
+    def _tags(self):
+        n = self.lmp.extract_setting("nlocal")
+        return np.asarray(self.lmp.numpy.extract_atom("id", nelem=n)[:n], dtype=np.int64) - 1
+
+    def run(self, steps, *, timed):
+        """Run ``steps``; when ``timed``, return ``({section: seconds}, list builds)``."""
+        if not timed:
+            self.lmp.command("log none")
+            self.lmp.command(f"run {int(steps)}")
+            return None
+        self.lmp.command(f"log {self.log}")
+        self.lmp.command(f"run {int(steps)}")
+        self.lmp.command("log none")
+        return _log_breakdown(self.log)
+
+    def state(self):
+        """(positions, velocities, spins) of the grains in id order."""
+        n = self.lmp.extract_setting("nlocal")
+        order = np.argsort(self._tags())
+        out = []
+        for name in ("x", "v", "omega"):
+            out.append(np.array(self.lmp.numpy.extract_atom(name, nelem=n)[:n], dtype=float)[order])
+        return tuple(out)
+
+    def contacts(self):
+        """Grain-grain contacts now (``compute contact/atom``, summed and halved)."""
+        self.lmp.command("run 0 post no")
+        counts = self.lmp.numpy.extract_compute("contacts", 1, 1)  # per-atom vector
+        return int(round(float(np.sum(counts[: self.n])) / 2))
+
+    def close(self):
+        if getattr(self, "lmp", None) is not None:
+            self.lmp.close()
+            self.lmp = None
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def run_granularsap(example, positions, velocities, omegas, radii, width, steps, *, n_threads,
+                    dt, ids=None):
+    """Step the example's pour ``steps`` times; per-step search + history seconds and stats."""
+    floor = example.floor_mesh(width)
+    pour = example.Pour(positions, velocities, radii, width, floor, dt=dt,
+                        rebuild_margin=MARGIN, n_threads=n_threads, ids=ids, omegas=omegas)
+    seconds = np.empty(steps)
+    walls = np.empty(steps)
+    rebuilds = 0
+    for k in range(steps):
+        if k and k % SORT_EVERY == 0:
+            pour.reorder(pour.spatial_order())
+        pour.step()
+        seconds[k] = pour.search_seconds
+        walls[k] = pour.wall_seconds
+        rebuilds += bool(pour.search.stats.get("rebuilt"))
+    return {"seconds": seconds, "wall_seconds": walls, "rebuilds": rebuilds,
+            "contacts": len(pour.pairs), "wall_contacts": len(pour.wall_spring),
+            "path": pour.search.stats.get("path")}
+
+
+def dem_loop(n, *, steps=STEPS, settle=SETTLE, n_threads=1, seed=0, example=None, lammps=True,
+             progress=None):
+    """Run the dem-loop comparison for ``n`` grains; a dict of figures (seconds per step)."""
+    say = progress or (lambda msg: None)
+    ex = example or load_example()
+    dt = 5e-4
+    positions, velocities, radii, width = ex.initial_column(int(n), seed)
+    omegas = np.zeros_like(positions)
+    out = {"n": int(n), "steps": int(steps), "settle": int(settle), "threads": int(n_threads),
+           "seed": seed, "dt": dt, "rebuild_margin": MARGIN, "width": float(width)}
+    why = None
+    if lammps:
+        try:
+            import lammps_bridge  # noqa: F401
+        except ImportError as exc:
+            why = f"{type(exc).__name__}: {exc}"
+    else:
+        why = "not asked for"
+    if why is None:
+        system = LammpsPour(ex, positions, velocities, radii, width, n_threads=n_threads, dt=dt)
+        try:
+            out["lammps_omp"] = system.omp
+            if settle:
+                say(f"  LAMMPS settles the pour: {settle} steps")
+                system.run(settle, timed=False)
+            positions, velocities, omegas = system.state()
+            say(f"  LAMMPS: {steps} timed steps")
+            sections, builds = system.run(steps, timed=True)
+            out["lammps"] = {k.lower(): v / steps for k, v in sections.items()}
+            out["lammps_builds"] = builds
+            out["lammps_contacts"] = system.contacts()
+        finally:
+            system.close()
+    else:
+        out["lammps_missing"] = why
+        if settle:
+            say(f"  LAMMPS not available ({why}): granularsap times the pour from the column")
+    say(f"  granularsap: {steps} steps")
+    run_granularsap(ex, positions[: min(len(positions), 64)], velocities[:64], omegas[:64],
+                    radii[:64], width, 3, n_threads=n_threads, dt=dt)  # compile, untimed
+    gs = run_granularsap(ex, positions, velocities, omegas, radii, width, steps,
+                         n_threads=n_threads, dt=dt)
+    s = gs.pop("seconds")
+    w = gs.pop("wall_seconds")
+    out["granularsap"] = {"min": float(s.min()), "median": float(np.median(s)),
+                          "mean": float(s.mean()), "walls_mean": float(w.mean()), **gs}
+    if "lammps" in out:
+        neigh = out["lammps"].get("neigh", 0.0)
+        pair = out["lammps"].get("pair", 0.0)
+        mean = out["granularsap"]["mean"]
+        out["ratio_neigh"] = mean / neigh if neigh > 0 else float("inf")
+        out["ratio_neigh_pair"] = mean / (neigh + pair) if neigh + pair > 0 else float("inf")
+    return out
+
+
+def format_result(r):
+    """The lines ``granularsap bench dem-loop`` prints for one result."""
+    ms = 1e3
+    g = r["granularsap"]
+    lines = [f"dem-loop N={r['n']}: {r['steps']} steps after {r['settle']} of settling, "
+             f"{r['threads']} thread(s)",
+             f"  granularsap search + history per step: min {g['min'] * ms:.3f} ms, median "
+             f"{g['median'] * ms:.3f} ms, mean {g['mean'] * ms:.3f} ms (walls "
+             f"{g['walls_mean'] * ms:.3f}); {g['rebuilds']} list rebuilds, "
+             f"{g['contacts']} contacts + {g['wall_contacts']} on walls at the end, "
+             f"path {g['path']}"]
+    if "lammps" in r:
+        lam = r["lammps"]
+        words = ", ".join(f"{k.capitalize()} {lam[k] * ms:.3f}" for k in
+                          ("neigh", "pair", "modify", "comm") if k in lam)
+        lines.append(f"  LAMMPS per step (its timers, mean): {words} ms; "
+                     f"{r['lammps_builds']} list builds, {r['lammps_contacts']} contacts at the "
+                     f"end; {'OPENMP' if r.get('lammps_omp') else 'serial'}")
+        lines.append(f"  ratio granularsap / LAMMPS Neigh: {r['ratio_neigh']:.2f}; "
+                     f"/ (Neigh + Pair): {r['ratio_neigh_pair']:.2f}")
+    else:
+        lines.append(f"  LAMMPS: not run ({r.get('lammps_missing')})")
+    return "\n".join(lines)
+
+
+def run_dem_loop(args):
+    """Entry point of ``granularsap bench dem-loop``; returns an exit code."""
+    from .report import machine_description
+
+    quick = bool(getattr(args, "quick", False))
+    sizes = getattr(args, "dem_sizes", None) or (QUICK_SIZES if quick else SIZES)
+    steps = getattr(args, "steps", None) or (QUICK_STEPS if quick else STEPS)
+    settle = getattr(args, "settle", None)
+    settle = (QUICK_SETTLE if quick else SETTLE) if settle is None else settle
+    threads = getattr(args, "threads", None) or 1
+    if steps < 1:
+        raise ValueError(f"--steps must be at least 1, got {steps}")
+    if settle < 0:
+        raise ValueError(f"--settle must be at least 0, got {settle}")
+    example = load_example()
+    machine = machine_description()
+    load = machine.get("load_average")
+    print(f"machine: {machine['cpu_model']}, {machine['usable_cores']} usable cores, "
+          f"{threads} thread(s)" + (f", load average {load[0]:.2f}" if load else ""), flush=True)
+    results = []
+    for n in sizes:
+        t0 = time.perf_counter()
+        r = dem_loop(n, steps=steps, settle=settle, n_threads=threads,
+                     seed=getattr(args, "seed", 0) or 0, example=example,
+                     progress=lambda msg: print(msg, flush=True))
+        r["wall_seconds"] = time.perf_counter() - t0
+        results.append(r)
+        print(format_result(r), flush=True)
+    if getattr(args, "json", None):
+        with open(args.json, "w") as fh:
+            json.dump({"schema": "granularsap-bench-dem-loop/1", "machine": machine,
+                       "results": results}, fh, indent=1)
+        print(f"wrote {args.json}")
+    return 0
