@@ -212,8 +212,13 @@ class Pour:
 
         force = m[:, None] * GRAVITY
         torque = np.zeros_like(x)
-        # grain-grain: A = i, B = j, normal from i to j
+        # grain-grain: A is the grain with the lower id, B the other, normal from A to B.
+        # A spring is a vector from A's side to B's: ordering each contact by ids (not
+        # rows) keeps its sign when the grains are re-ordered.
         i, j = pairs[:, 0], pairs[:, 1]
+        swap = self.ids[i] > self.ids[j]
+        i, j = np.where(swap, j, i), np.where(swap, i, j)
+        vec = np.where(swap[:, None], -vec, vec)
         overlap = r[i] + r[j] - dist
         normal = vec / dist[:, None]
         arm_i, arm_j = r[i] - 0.5 * overlap, r[j] - 0.5 * overlap   # centre to contact point

@@ -303,7 +303,8 @@ def run_dem_loop(args):
 
     quick = bool(getattr(args, "quick", False))
     sizes = getattr(args, "dem_sizes", None) or (QUICK_SIZES if quick else SIZES)
-    steps = getattr(args, "steps", None) or (QUICK_STEPS if quick else STEPS)
+    steps = getattr(args, "steps", None)
+    steps = (QUICK_STEPS if quick else STEPS) if steps is None else steps
     settle = getattr(args, "settle", None)
     settle = (QUICK_SETTLE if quick else SETTLE) if settle is None else settle
     threads = getattr(args, "threads", None) or 1
