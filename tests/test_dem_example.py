@@ -317,12 +317,15 @@ def test_dem_loop_runs_against_lammps(ex):
     assert 0 < g["min"] <= g["median"] and g["mean"] > 0 and np.isfinite(g["mean"])
     assert lam["pair"] > 0 and lam["neigh"] >= 0 and r["lammps_builds"] >= 0
     assert np.isfinite(r["ratio_neigh_pair"]) and r["ratio_neigh_pair"] > 0
+    assert 0 < r["ratio_grains_neigh_pair"] < r["ratio_neigh_pair"]
+    assert 0 < g["walls_mean"] < g["mean"]
     # the two codes pour alike: after 300 steps from the same column, from the same
     # state, the same model: contact counts close
     assert g["contacts"] > 0 and abs(g["contacts"] - r["lammps_contacts"]) <= max(
         5, 0.1 * r["lammps_contacts"])
     text = demloop.format_result(r)
     assert "ratio granularsap / LAMMPS Neigh" in text and "N=150" in text
+    assert "grain contacts only" in text
 
 
 @pytest.mark.lammps
