@@ -166,8 +166,9 @@ class Pour:
     """The state of the pour and one time step of it.
 
     ``positions``, ``velocities``, ``omegas`` (n, 3), ``radii``, ``ids`` (n,):
-    the grains (``ids`` label them whatever their row); ``walls``: the
-    ``WallSearch`` geometry (side planes, then the floor mesh).  After each
+    the grains (``ids`` label them whatever their row); ``search`` and
+    ``walls``: the ``ContactSearch`` and the ``WallSearch`` (side planes, then
+    the floor mesh), both with contact identity.  After each
     :meth:`contact_forces`: ``pairs`` and ``spring`` (the grain contacts and
     their tangential springs, row for row), ``wall_contacts`` and
     ``wall_spring``, and ``search_seconds``, the time of the two searches and

@@ -61,7 +61,6 @@ SETTLE, QUICK_SETTLE = 10_000, 2_000
 SORT_EVERY = 1000
 #: the Verlet margin of both codes (LAMMPS: neighbor 0.2 bin)
 MARGIN = 0.2
-GRAVITY = 10.0
 EXAMPLE = Path("examples") / "dem_hertz_mindlin.py"
 
 
@@ -154,7 +153,7 @@ class LammpsPour:
                       f"fix side_x all wall/gran granular {model} xplane 0.0 {w!r}",
                       f"fix side_y all wall/gran granular {model} yplane 0.0 {w!r}",
                       "fix move all nve/sphere",
-                      f"fix gravity all gravity {GRAVITY!r} vector 0 0 -1",
+                      f"fix gravity all gravity {-float(example.GRAVITY[2])!r} vector 0 0 -1",
                       "compute contacts all contact/atom", "thermo 0"]:
                 self.lmp.command(c)
         except Exception:
