@@ -319,13 +319,15 @@ def test_dem_loop_runs_against_lammps(ex):
     assert np.isfinite(r["ratio_neigh_pair"]) and r["ratio_neigh_pair"] > 0
     assert 0 < r["ratio_grains_neigh_pair"] < r["ratio_neigh_pair"]
     assert 0 < g["walls_mean"] < g["mean"]
+    assert len(r["lammps_chunks"]) == len(g["chunk_means"]) == 8
+    assert r["fastest_chunk"]["granularsap"] == min(g["chunk_means"])
     # the two codes pour alike: after 300 steps from the same column, from the same
     # state, the same model: contact counts close
     assert g["contacts"] > 0 and abs(g["contacts"] - r["lammps_contacts"]) <= max(
         5, 0.1 * r["lammps_contacts"])
     text = demloop.format_result(r)
     assert "ratio granularsap / LAMMPS Neigh" in text and "N=150" in text
-    assert "grain contacts only" in text
+    assert "grain contacts only" in text and "fastest of 8 runs of 1 steps" in text
 
 
 @pytest.mark.lammps

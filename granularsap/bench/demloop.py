@@ -57,6 +57,8 @@ SIZES, QUICK_SIZES = (2_000, 10_000), (1_000,)
 #: timed steps, and untimed settling steps before them (default, --quick)
 STEPS, QUICK_STEPS = 1_000, 200
 SETTLE, QUICK_SETTLE = 10_000, 2_000
+#: the timed steps run as this many equal runs (both codes), each timed on its own
+CHUNKS = 10
 #: LAMMPS's default atom sort interval, used for granularsap's re-ordering too
 SORT_EVERY = 1000
 #: the Verlet margin of both codes (LAMMPS: neighbor 0.2 bin)
@@ -164,14 +166,19 @@ class LammpsPour:
         n = self.lmp.extract_setting("nlocal")
         return np.asarray(self.lmp.numpy.extract_atom("id", nelem=n)[:n], dtype=np.int64) - 1
 
-    def run(self, steps, *, timed):
-        """Run ``steps``; when ``timed``, return ``({section: seconds}, list builds)``."""
+    def run(self, steps, *, timed, pre=True):
+        """Run ``steps``; when ``timed``, return ``({section: seconds}, list builds)``.
+
+        ``pre=False`` continues the previous run without LAMMPS's set-up (``run N pre
+        no``: no extra neighbour build between two timed runs).
+        """
+        command = f"run {int(steps)}" + ("" if pre else " pre no")
         if not timed:
             self.lmp.command("log none")
-            self.lmp.command(f"run {int(steps)}")
+            self.lmp.command(command)
             return None
         self.lmp.command(f"log {self.log}")
-        self.lmp.command(f"run {int(steps)}")
+        self.lmp.command(command)
         self.lmp.command("log none")
         return _log_breakdown(self.log)
 
@@ -228,6 +235,10 @@ def dem_loop(n, *, steps=STEPS, settle=SETTLE, n_threads=1, seed=0, example=None
     omegas = np.zeros_like(positions)
     out = {"n": int(n), "steps": int(steps), "settle": int(settle), "threads": int(n_threads),
            "seed": seed, "dt": dt, "rebuild_margin": MARGIN, "width": float(width)}
+    # the timed steps in CHUNKS runs of equal length: LAMMPS's timers per run, and
+    # granularsap's steps over the same ranges (the fastest run of each is robust to load)
+    bounds = np.linspace(0, steps, min(CHUNKS, steps) + 1).round().astype(int).tolist()
+    chunks = []
     why = None
     if lammps:
         try:
@@ -244,8 +255,15 @@ def dem_loop(n, *, steps=STEPS, settle=SETTLE, n_threads=1, seed=0, example=None
                 say(f"  LAMMPS settles the pour: {settle} steps")
                 system.run(settle, timed=False)
             positions, velocities, omegas = system.state()
-            say(f"  LAMMPS: {steps} timed steps")
-            sections, builds = system.run(steps, timed=True)
+            say(f"  LAMMPS: {steps} timed steps in {len(bounds) - 1} runs")
+            sections, builds = {}, 0
+            for c, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+                part, builds = system.run(b - a, timed=True, pre=c == 0)
+                # the timers restart with every run; the count of list builds runs on
+                # from the first run's set-up (runs with pre no do not reset it)
+                chunks.append({k.lower(): v / (b - a) for k, v in part.items()})
+                for k, v in part.items():
+                    sections[k] = sections.get(k, 0.0) + v
             out["lammps"] = {k.lower(): v / steps for k, v in sections.items()}
             out["lammps_builds"] = builds
             out["lammps_contacts"] = system.contacts()
@@ -256,14 +274,26 @@ def dem_loop(n, *, steps=STEPS, settle=SETTLE, n_threads=1, seed=0, example=None
         if settle:
             say(f"  LAMMPS not available ({why}): granularsap times the pour from the column")
     say(f"  granularsap: {steps} steps")
-    run_granularsap(ex, positions[: min(len(positions), 64)], velocities[:64], omegas[:64],
-                    radii[:64], width, 3, n_threads=n_threads, dt=dt)  # compile, untimed
+    # untimed: compile (or load from the cache) what this pour's searches use
+    run_granularsap(ex, positions, velocities, omegas, radii, width, 3, n_threads=n_threads,
+                    dt=dt)
     gs = run_granularsap(ex, positions, velocities, omegas, radii, width, steps,
                          n_threads=n_threads, dt=dt)
     s = gs.pop("seconds")
     w = gs.pop("wall_seconds")
     out["granularsap"] = {"min": float(s.min()), "median": float(np.median(s)),
                           "mean": float(s.mean()), "walls_mean": float(w.mean()), **gs}
+    means = [float(s[a:b].mean()) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    walls = [float(w[a:b].mean()) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    out["granularsap"]["chunk_means"] = means
+    if chunks:
+        out["lammps_chunks"] = chunks
+        best = int(np.argmin(means))
+        fast = {"granularsap": min(means), "granularsap_walls": walls[best],
+                "granularsap_grains": min(m - x for m, x in zip(means, walls, strict=True))}
+        for key in ("neigh", "pair"):
+            fast[key] = min(c.get(key, 0.0) for c in chunks)
+        out["fastest_chunk"] = fast
     if "lammps" in out:
         neigh = out["lammps"].get("neigh", 0.0)
         pair = out["lammps"].get("pair", 0.0)
@@ -301,6 +331,18 @@ def format_result(r):
         lines.append(f"  grain contacts only (walls left out, as LAMMPS's Neigh leaves out its "
                      f"walls): / Neigh {r['ratio_grains_neigh']:.2f}; / (Neigh + Pair): "
                      f"{r['ratio_grains_neigh_pair']:.2f}")
+        f = r.get("fastest_chunk")
+        if f:
+            k = len(r["lammps_chunks"])
+            np_ = f["neigh"] + f["pair"]
+            lines.append(f"  fastest of {k} runs of {r['steps'] // k} steps (each code's own, "
+                         f"less sensitive to load): granularsap {f['granularsap'] * ms:.3f} ms "
+                         f"(grains {f['granularsap_grains'] * ms:.3f}), LAMMPS Neigh "
+                         f"{f['neigh'] * ms:.3f}, Pair {f['pair'] * ms:.3f}; ratios / Neigh "
+                         f"{f['granularsap'] / f['neigh'] if f['neigh'] else float('inf'):.2f}, "
+                         f"/ (Neigh + Pair) {f['granularsap'] / np_ if np_ else float('inf'):.2f}"
+                         f", grains / (Neigh + Pair) "
+                         f"{f['granularsap_grains'] / np_ if np_ else float('inf'):.2f}")
     else:
         lines.append(f"  LAMMPS: not run ({r.get('lammps_missing')})")
     return "\n".join(lines)
