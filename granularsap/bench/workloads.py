@@ -309,8 +309,9 @@ WORKLOADS = {
     "trajectory": (trajectory, [100_000], [5_000]),
 }
 
-#: every name the bench command accepts (``paper`` is the engine's own benchmark)
-WORKLOAD_NAMES = [*WORKLOADS, "data", "paper"]
+#: every name the bench command accepts (``paper`` is the engine's own benchmark,
+#: ``mda-capped`` the MDAnalysis drop-in against MDAnalysis: bench/mda_capped.py)
+WORKLOAD_NAMES = [*WORKLOADS, "data", "paper", "mda-capped"]
 
 
 def make(name, n, *, seed=0, density=0.35, n_frames=50):
