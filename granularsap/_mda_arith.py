@@ -28,19 +28,22 @@ dtypes); they need MDAnalysis only for ``apply_PBC`` and
 Cutoffs beyond half the cell
 ----------------------------
 MDAnalysis's answer for any cutoff is one minimum image per pair.  When the
-cutoff exceeds half the smallest perpendicular cell width, a cell-list or
-sweep search would have to enumerate several images of every particle, so
-:func:`min_image_pairs` tests every pair directly instead (a brute-force
-kernel): fractional separation reduced to ``[-0.5, 0.5)``, a pair skipped at
-once if one fractional component times its perpendicular width already exceeds
-the reach (a lower bound on every image's distance), otherwise the true
-nearest image (triclinic cells: the images ``n`` with
-``|n_k| <= |r| / w_k + 1/2`` around the reduced separation ``r``).  Cost
-O(n m) distance evaluations in two passes (count, then fill at prefix-sum
-offsets) over chunks of rows balanced by work, so memory is the output and no
-more; the output order does not depend on the thread count.  Beyond half the
-width a large share of all pairs is in range anyway (about half of them in a
-cube), so the brute force is within a small factor of writing the output.
+cutoff exceeds half the smallest perpendicular cell width, ``granularsap.mda``
+takes every image within range from the engine and keeps one row per pair
+(:func:`nearest_images`: a bitmap of the ``n m`` pairs marks the first image
+when MDAnalysis's arithmetic decides afterwards, else a counting sort by the
+first index keeps the nearest image's distance).  When the cutoff's sphere
+exceeds twice the cell's volume, nearly every pair is in range and the list of
+every image would be several times the answer, so :func:`min_image_pairs`
+tests every pair directly instead (a brute-force kernel): fractional
+separation reduced to ``[-0.5, 0.5)``, a pair skipped at once if one
+fractional component times its perpendicular width already exceeds the reach
+(a lower bound on every image's distance), otherwise the true nearest image
+(triclinic cells: the images ``n`` with ``|n_k| <= |r| / w_k + 1/2`` around the
+reduced separation ``r``).  Cost O(n m) distance evaluations in two passes
+(count, then fill at prefix-sum offsets) over chunks of rows balanced by work,
+so memory is the output and no more; the output order does not depend on the
+thread count.
 """
 
 from __future__ import annotations

@@ -22,11 +22,15 @@ MDAnalysis would run (``method``, or MDAnalysis's own choice when it is None; se
 in ``granularsap.mda_analysis`` and is re-exported here on first access.
 
 Cutoffs beyond half the smallest perpendicular cell width get one minimum
-image per pair, as in MDAnalysis: every pair is tested by a brute-force kernel
-(``_mda_arith.min_image_pairs``) in memory proportional to the output, where
-MDAnalysis's own ``nsgrid`` choice would raise "Cutoff ... too large for box";
-pairs at the cutoff are then decided with the arithmetic of MDAnalysis's
-``bruteforce`` method.
+image per pair, as in MDAnalysis: the engine returns every image within range
+(``periodic_images="all"``) and one row per pair is kept
+(``_mda_arith.nearest_images``); past two images per pair on average every pair
+is tested by a brute-force kernel instead (``_mda_arith.min_image_pairs``), in
+memory proportional to the output.  Where MDAnalysis's own ``nsgrid`` choice
+would raise "Cutoff ... too large for box", pairs at the cutoff are decided with
+the arithmetic of MDAnalysis's ``bruteforce`` method.  ``capped_distance`` of a
+group with itself (equal coordinates) decides each pair ``i < j`` once and
+mirrors it.
 
 Differences: pairs of ``self_capped_distance`` always have ``i < j`` (MDAnalysis's
 grid method returns some pairs as ``j, i``), row order is unspecified, and the
