@@ -181,3 +181,21 @@ class TestDecisionKernel:
         assert np.array_equal(d[near], np.sqrt(want2[near]))
         assert np.array_equal(keep, np.sqrt(want2) <= cutoff)
         assert np.all(d[~near] > cutoff)
+
+
+class TestBenchWorkload:
+    def test_mda_capped_runs_and_checks_the_pairs(self, tmp_path, capsys):
+        import json
+        import os
+
+        from granularsap.cli import main
+
+        out = tmp_path / "mda.json"
+        data = os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir, "data")
+        assert main(["bench", "mda-capped", "--sizes", "3000", "--repeats", "1",
+                     "--data-dir", data, "--json", str(out)]) == 0
+        rows = json.loads(out.read_text())["rows"]
+        assert [r["cutoff"] for r in rows] == [1.5, 5.0, 8.0] * 2
+        assert all(r["same"] and r["pairs"] == r["granularsap_pairs"] for r in rows)
+        assert rows[2]["pairs"] == 3374264  # data/lj.dump at cutoff 8 (issue 20)
+        assert "same pairs" in capsys.readouterr().out
