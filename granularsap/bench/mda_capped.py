@@ -117,14 +117,14 @@ def run_mda_capped(args):
     frames.append(triclinic_frame(n, seed=getattr(args, "seed", 0) or 0))
     print(f"granularsap bench mda-capped: capped_distance(x, x, cutoff, box), cutoffs "
           f"{', '.join(f'{c:g}' for c in CUTOFFS)}, min of {repeats} runs", flush=True)
-    print(f"{'frame':<34} {'cutoff':>6} {'pairs':>11} {'MDAnalysis':>11} {'granularsap':>12} "
+    print(f"{'frame':<38} {'cutoff':>6} {'pairs':>11} {'MDAnalysis':>11} {'granularsap':>12} "
           f"{'ratio':>6}  same pairs", flush=True)
     rows = []
     for label, x, box in frames:
         for row in compare(label, x, box, CUTOFFS, repeats, threads):
             rows.append(row)
             ratio = row["granularsap_s"] / row["mdanalysis_s"]
-            print(f"{label:<34} {row['cutoff']:>6g} {row['pairs']:>11} "
+            print(f"{label:<38} {row['cutoff']:>6g} {row['pairs']:>11} "
                   f"{row['mdanalysis_s']:>10.4f}s {row['granularsap_s']:>11.4f}s "
                   f"{ratio:>6.2f}  {'yes' if row['same'] else 'NO'}", flush=True)
     json_path = getattr(args, "json", None)
