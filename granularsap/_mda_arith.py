@@ -19,26 +19,31 @@ MDAnalysis would use (``method=None`` chooses like MDAnalysis does):
 * ``pkdtree`` decides inside scipy's KD-tree; candidates keep granularsap's
   float64 minimum-image decision.
 
-These are ports of MDAnalysis's ``calc_distances.h`` and ``nsgrid.pyx``
-written with numpy; they need MDAnalysis only for ``apply_PBC`` and
+These are ports of MDAnalysis's ``calc_distances.h`` and ``nsgrid.pyx``: the
+coordinates are prepared per set with numpy, each candidate is decided in one
+compiled pass (``_decide_kernel``, operation for operation in the same
+dtypes); they need MDAnalysis only for ``apply_PBC`` and
 ``triclinic_vectors``.
 
 Cutoffs beyond half the cell
 ----------------------------
 MDAnalysis's answer for any cutoff is one minimum image per pair.  When the
-cutoff exceeds half the smallest perpendicular cell width, a cell-list or
-sweep search would have to enumerate several images of every particle, so
-:func:`min_image_pairs` tests every pair directly instead (a brute-force
-kernel): fractional separation reduced to ``[-0.5, 0.5)``, a pair skipped at
-once if one fractional component times its perpendicular width already exceeds
-the reach (a lower bound on every image's distance), otherwise the true
-nearest image (triclinic cells: the images ``n`` with
-``|n_k| <= |r| / w_k + 1/2`` around the reduced separation ``r``).  Cost
-O(n m) distance evaluations in two passes (count, then fill at prefix-sum
-offsets) over chunks of rows balanced by work, so memory is the output and no
-more; the output order does not depend on the thread count.  Beyond half the
-width a large share of all pairs is in range anyway (about half of them in a
-cube), so the brute force is within a small factor of writing the output.
+cutoff exceeds half the smallest perpendicular cell width, ``granularsap.mda``
+takes every image within range from the engine and keeps one row per pair
+(:func:`nearest_images`: a bitmap of the ``n m`` pairs marks the first image
+when MDAnalysis's arithmetic decides afterwards, else a counting sort by the
+first index keeps the nearest image's distance).  When the cutoff's sphere
+exceeds twice the cell's volume, nearly every pair is in range and the list of
+every image would be several times the answer, so :func:`min_image_pairs`
+tests every pair directly instead (a brute-force kernel): fractional
+separation reduced to ``[-0.5, 0.5)``, a pair skipped at once if one
+fractional component times its perpendicular width already exceeds the reach
+(a lower bound on every image's distance), otherwise the true nearest image
+(triclinic cells: the images ``n`` with ``|n_k| <= |r| / w_k + 1/2`` around the
+reduced separation ``r``).  Cost O(n m) distance evaluations in two passes
+(count, then fill at prefix-sum offsets) over chunks of rows balanced by work,
+so memory is the output and no more; the output order does not depend on the
+thread count.
 """
 
 from __future__ import annotations
@@ -48,40 +53,10 @@ import math
 import numba
 import numpy as np
 
-from ._numba import ijit, jit, pjit
+from ._numba import ijit, jit, pjit, serial_twin
 
 #: Relative widening of the candidate search (float32 rounding is ~6e-8).
 WIDEN = 1e-5
-
-
-def _c_round(s):
-    """C ``round``: halves away from zero (numpy rounds halves to even)."""
-    r = np.trunc(s)
-    frac = s - r
-    return r + np.where(np.abs(frac) >= 0.5, np.sign(s), 0.0)
-
-
-def _tri_min_image(dx, box9):
-    """``minimum_image_triclinic`` of calc_distances.h, vectorised (double)."""
-    b = box9.astype(np.float64)
-    best = np.full(len(dx), np.finfo(np.float32).max, dtype=np.float64)
-    out = np.zeros_like(dx)
-    for ix in (-1, 0, 1):
-        rx = dx[:, 0] + b[0] * ix
-        for iy in (-1, 0, 1):
-            ry0 = rx + b[3] * iy
-            ry1 = dx[:, 1] + b[4] * iy
-            for iz in (-1, 0, 1):
-                rz0 = ry0 + b[6] * iz
-                rz1 = ry1 + b[7] * iz
-                rz2 = dx[:, 2] + b[8] * iz
-                dsq = rz0 * rz0 + rz1 * rz1 + rz2 * rz2
-                take = dsq < best
-                best = np.where(take, dsq, best)
-                out[take, 0] = rz0[take]
-                out[take, 1] = rz1[take]
-                out[take, 2] = rz2[take]
-    return out
 
 
 def _box_kind(box32):
@@ -155,17 +130,115 @@ def _nsgrid_cutoff2(max_cutoff):
     return c * c
 
 
+#: image rules of ``_decide_kernel``
+_PLAIN, _ORTHO_LAZY, _ORTHO_ROUND, _TRICLINIC = 0, 1, 2, 3
+#: candidates per chunk of the parallel decision (chunks never depend on threads)
+_DECIDE_CHUNK = 1 << 14
+
+
+@ijit
+def _c_round1(s):
+    """C ``round`` of a double: halves away from zero (numpy rounds them to even)."""
+    r = np.trunc(s)
+    frac = s - r
+    if abs(frac) >= 0.5:
+        r += 1.0 if s > 0 else (-1.0 if s < 0 else 0.0)
+    return r
+
+
+@ijit
+def _decide_one(P, Q, i, j, rule, box, half, inv, tri, limit2):
+    """Squared distance of ``Q[j] - P[i]`` as MDAnalysis computes it: float32
+    differences, then the image ``rule`` in double.
+
+    Exact when it is at most ``limit2``; otherwise some value above ``limit2``
+    (the 27-image search skips images that cannot come under ``limit2``: only
+    the smallest squared length matters, not which image has it).
+    """
+    # float32 - float32 is a float32 in numba as in numpy
+    d0 = np.float64(Q[j, 0] - P[i, 0])
+    d1 = np.float64(Q[j, 1] - P[i, 1])
+    d2 = np.float64(Q[j, 2] - P[i, 2])
+    if rule == _ORTHO_LAZY:
+        d0 = d0 - box[0] if d0 > half[0] else (d0 + box[0] if d0 <= -half[0] else d0)
+        d1 = d1 - box[1] if d1 > half[1] else (d1 + box[1] if d1 <= -half[1] else d1)
+        d2 = d2 - box[2] if d2 > half[2] else (d2 + box[2] if d2 <= -half[2] else d2)
+    elif rule == _ORTHO_ROUND:
+        s = inv[0] * d0
+        d0 = box[0] * (s - _c_round1(s))
+        s = inv[1] * d1
+        d1 = box[1] * (s - _c_round1(s))
+        s = inv[2] * d2
+        d2 = box[2] * (s - _c_round1(s))
+    elif rule == _TRICLINIC:
+        # minimum_image_triclinic of calc_distances.h: the smallest squared length
+        # of the 27 images, each summed in MDAnalysis's order; the cell is lower
+        # triangular (triclinic_vectors), so rz2 and then (rz1, rz2) bound an
+        # image's length from below, and images that cannot beat limit2 are skipped
+        best = np.inf
+        for iz in range(-1, 2):
+            rz2 = d2 + tri[8] * iz
+            z2 = rz2 * rz2
+            if z2 > limit2:
+                continue
+            for iy in range(-1, 2):
+                ry1 = d1 + tri[4] * iy
+                rz1 = ry1 + tri[7] * iz
+                if rz1 * rz1 + z2 > limit2:
+                    continue
+                for ix in range(-1, 2):
+                    rx = d0 + tri[0] * ix
+                    ry0 = rx + tri[3] * iy
+                    rz0 = ry0 + tri[6] * iz
+                    dsq = rz0 * rz0 + rz1 * rz1 + rz2 * rz2
+                    if dsq < best:
+                        best = dsq
+        return best
+    return (d0 * d0) + (d1 * d1) + (d2 * d2)
+
+
+@pjit
+def _decide_kernel(P, Q, a, b, rule, box, half, inv, tri, cutoff, cutoff2, by_square,
+                   out_d, keep):
+    """Distances and keep-mask of candidates ``(P[a[k]], Q[b[k]])``: ``d2 <= cutoff2``
+    (nsgrid) or ``sqrt(d2) <= cutoff`` (bruteforce).  Distances are exact up to
+    a relative 1e-3 beyond the cutoff, and some larger value (inf) further out."""
+    k_all = a.shape[0]
+    n_chunks = (k_all + _DECIDE_CHUNK - 1) // _DECIDE_CHUNK
+    limit2 = max(cutoff2, cutoff * cutoff) * (1.0 + 2e-3)
+    for ch in numba.prange(n_chunks):
+        lo = ch * _DECIDE_CHUNK
+        hi = min(k_all, lo + _DECIDE_CHUNK)
+        for k in range(lo, hi):
+            d2 = _decide_one(P, Q, a[k], b[k], rule, box, half, inv, tri, limit2)
+            d = math.sqrt(d2)
+            out_d[k] = d
+            keep[k] = d2 <= cutoff2 if by_square else d <= cutoff
+
+
+_decide_serial = serial_twin(_decide_kernel)
+
+
 def decide(ref32, conf32, a, b, box32, max_cutoff, method):
     """Distances (float64) and a keep-mask for candidates ``(ref[a], conf[b])``
-    under MDAnalysis method ``method``; ``None`` if the method is not emulated."""
+    under MDAnalysis method ``method``; ``None`` if the method is not emulated.
+
+    The coordinates are prepared once per set (wrapped by ``apply_PBC``, or
+    shifted into nsgrid's pseudo-box, in MDAnalysis's own dtypes), then one
+    compiled pass per candidate reproduces MDAnalysis's arithmetic operation
+    for operation (``_decide_one``).
+    """
     if method not in ("bruteforce", "nsgrid"):
         return None
+    same = conf32 is ref32
+    zero3 = np.zeros(3)
+    box = half = inv = zero3
+    tri = np.zeros(9)
+    rule = _PLAIN
     if box32 is None:
-        p = ref32[a]
-        q = conf32[b]
         if method == "nsgrid":
             # _nsgrid_capped(_self) shift the coordinates into a pseudo-box first
-            if conf32 is ref32:
+            if same:
                 lmin = ref32.min(axis=0)
                 boxsize = (ref32.max(axis=0) - lmin).max()
                 shift = lmin - 0.1 * boxsize
@@ -173,41 +246,152 @@ def decide(ref32, conf32, a, b, box32, max_cutoff, method):
                 # max_cutoff as the caller gave it: a numpy float64 makes this shift
                 # float64 (NEP 50), a Python float leaves it float32
                 shift = np.concatenate([ref32, conf32]).min(axis=0) - 0.1 * max_cutoff
-            # MDAnalysis subtracts in place from float32 copies
-            p = (p - shift).astype(np.float32)
-            q = (q - shift).astype(np.float32)
-        dx = (q - p).astype(np.float64)
-        d2 = (dx[:, 0] * dx[:, 0]) + (dx[:, 1] * dx[:, 1]) + (dx[:, 2] * dx[:, 2])
-        if method == "nsgrid":
-            return np.sqrt(d2), d2 <= _nsgrid_cutoff2(max_cutoff)
-        d = np.sqrt(d2)
-        return d, d <= max_cutoff
-    from MDAnalysis.lib.distances import apply_PBC
-
-    kind, bx = _box_kind(box32)
-    if method == "nsgrid" or kind == "tri":
-        # wrapping is per coordinate: wrap each set once, then pick candidates
-        same = conf32 is ref32
-        ref32 = apply_PBC(ref32, box32).astype(np.float32)
-        conf32 = ref32 if same else apply_PBC(conf32, box32).astype(np.float32)
-    p = ref32[a]
-    q = conf32[b]
-    dx = (q - p).astype(np.float64)
-    if kind == "tri":
-        dx = _tri_min_image(dx, bx)
-    elif method == "nsgrid":
-        half = (np.float32(0.5) * bx).astype(np.float64)
-        box64 = bx.astype(np.float64)
-        dx = np.where(dx > half, dx - box64, np.where(dx <= -half, dx + box64, dx))
+            # MDAnalysis subtracts in place from float32 copies (elementwise: the
+            # same per coordinate as per candidate)
+            ref32 = (ref32 - shift).astype(np.float32)
+            conf32 = ref32 if same else (conf32 - shift).astype(np.float32)
     else:
-        inv = (1.0 / bx.astype(np.float64)).astype(np.float32).astype(np.float64)
-        s = inv * dx
-        dx = bx.astype(np.float64) * (s - _c_round(s))
-    d2 = (dx[:, 0] * dx[:, 0]) + (dx[:, 1] * dx[:, 1]) + (dx[:, 2] * dx[:, 2])
-    if method == "nsgrid":
-        return np.sqrt(d2), d2 <= _nsgrid_cutoff2(max_cutoff)
-    d = np.sqrt(d2)
-    return d, d <= max_cutoff
+        from MDAnalysis.lib.distances import apply_PBC
+
+        kind, bx = _box_kind(box32)
+        if method == "nsgrid" or kind == "tri":
+            # wrapping is per coordinate: wrap each set once, then pick candidates
+            ref32 = apply_PBC(ref32, box32).astype(np.float32)
+            conf32 = ref32 if same else apply_PBC(conf32, box32).astype(np.float32)
+        if kind == "tri":
+            rule = _TRICLINIC
+            tri = bx.astype(np.float64)
+        elif method == "nsgrid":
+            rule = _ORTHO_LAZY
+            box = bx.astype(np.float64)
+            half = (np.float32(0.5) * bx).astype(np.float64)
+        else:
+            rule = _ORTHO_ROUND
+            box = bx.astype(np.float64)
+            inv = (1.0 / bx.astype(np.float64)).astype(np.float32).astype(np.float64)
+    P = np.ascontiguousarray(ref32, dtype=np.float32)
+    Q = P if same else np.ascontiguousarray(conf32, dtype=np.float32)
+    a = np.ascontiguousarray(a, dtype=np.int64)
+    b = np.ascontiguousarray(b, dtype=np.int64)
+    k = len(a)
+    out_d = np.empty(k)
+    keep = np.empty(k, np.bool_)
+    by_square = method == "nsgrid"
+    kernel = _decide_kernel if k >= 4 * _DECIDE_CHUNK else _decide_serial
+    kernel(P, Q, a, b, rule, box, half, inv, tri, float(max_cutoff),
+           _nsgrid_cutoff2(max_cutoff), by_square, out_d, keep)
+    return out_d, keep
+
+
+# ---------------------------------------------------------------------------
+# every image within reach, reduced to one per pair
+
+
+@jit
+def _nearest_images(pairs, shift, d, n, m, drop_diagonal, out_a, out_b, out_d):
+    """Rows of ``(pairs, d)`` that are the nearest image of their pair (the first
+    such row), grouped by ``pairs[:, 0]`` with a counting sort; ``shift`` is
+    subtracted from ``pairs[:, 1]``.  Returns how many (written to ``out_*``)."""
+    k = pairs.shape[0]
+    start = np.zeros(n + 1, np.int64)
+    for r in range(k):
+        start[pairs[r, 0] + 1] += 1
+    for i in range(n):
+        start[i + 1] += start[i]
+    order = np.empty(k, np.int64)
+    fill = start[:-1].copy()
+    for r in range(k):
+        i = pairs[r, 0]
+        order[fill[i]] = r
+        fill[i] += 1
+    best = np.full(m, -1, np.int64)
+    count = 0
+    for i in range(n):
+        first = count
+        for p in range(start[i], start[i + 1]):
+            r = order[p]
+            j = pairs[r, 1] - shift
+            if drop_diagonal and j == i:
+                continue
+            q = best[j]
+            if q < 0:
+                best[j] = count
+                out_a[count] = i
+                out_b[count] = j
+                out_d[count] = d[r]
+                count += 1
+            elif d[r] < out_d[q]:
+                out_d[q] = d[r]
+        for q in range(first, count):
+            best[out_b[q]] = -1
+    return count
+
+
+@jit
+def _first_images(pairs, shift, d, m, drop_diagonal, seen, out_a, out_b, out_d):
+    """The first row of every pair, marked in a bitmap of all ``n * m`` pairs (a
+    few megabytes at most: the caller checks); returns how many."""
+    count = 0
+    for r in range(pairs.shape[0]):
+        i = pairs[r, 0]
+        j = pairs[r, 1] - shift
+        if drop_diagonal and j == i:
+            continue
+        idx = i * m + j
+        byte = idx >> 3
+        bit = np.uint8(1 << (idx & 7))
+        if seen[byte] & bit:
+            continue
+        seen[byte] |= bit
+        out_a[count] = i
+        out_b[count] = j
+        out_d[count] = d[r]
+        count += 1
+    return count
+
+
+#: pairs ``n * m`` up to which a bitmap finds the first image of each pair
+_BITMAP_PAIRS = 1 << 27
+
+
+def nearest_images(pairs, d, n, m, *, shift=0, drop_diagonal=False, any_image=False):
+    """One row per pair of an every-image list: the distance of its nearest image.
+
+    Parameters
+    ----------
+    pairs : (k, 2) ndarray of int64
+        ``pairs[:, 0]`` in ``[0, n)``, ``pairs[:, 1] - shift`` in ``[0, m)``; a
+        pair appears once per image within range.
+    d : (k,) ndarray of float64
+        The image's distance.
+    shift : int
+        Subtracted from ``pairs[:, 1]`` (the second set's offset in a search
+        over both sets).
+    drop_diagonal : bool
+        Leave out a particle with its own images.
+    any_image : bool
+        Any one image per pair will do (its distance is then that image's, not
+        the nearest's): the caller decides pairs by their own arithmetic.
+
+    Returns
+    -------
+    a, b, d : ndarray
+        The order depends only on the input, never on threads.
+    """
+    k = len(pairs)
+    out_a = np.empty(k, np.int64)
+    out_b = np.empty(k, np.int64)
+    out_d = np.empty(k, np.float64)
+    pairs = np.ascontiguousarray(pairs, dtype=np.int64)
+    d = np.ascontiguousarray(d, dtype=np.float64)
+    if any_image and n * m <= _BITMAP_PAIRS:
+        seen = np.zeros((n * m + 7) // 8, np.uint8)
+        count = _first_images(pairs, int(shift), d, int(m), bool(drop_diagonal), seen, out_a,
+                              out_b, out_d)
+    else:
+        count = _nearest_images(pairs, int(shift), d, int(n), int(m), bool(drop_diagonal),
+                                out_a, out_b, out_d)
+    return out_a[:count], out_b[:count], out_d[:count]
 
 
 # ---------------------------------------------------------------------------

@@ -22,11 +22,15 @@ MDAnalysis would run (``method``, or MDAnalysis's own choice when it is None; se
 in ``granularsap.mda_analysis`` and is re-exported here on first access.
 
 Cutoffs beyond half the smallest perpendicular cell width get one minimum
-image per pair, as in MDAnalysis: every pair is tested by a brute-force kernel
-(``_mda_arith.min_image_pairs``) in memory proportional to the output, where
-MDAnalysis's own ``nsgrid`` choice would raise "Cutoff ... too large for box";
-pairs at the cutoff are then decided with the arithmetic of MDAnalysis's
-``bruteforce`` method.
+image per pair, as in MDAnalysis: the engine returns every image within range
+(``periodic_images="all"``) and one row per pair is kept
+(``_mda_arith.nearest_images``); past two images per pair on average every pair
+is tested by a brute-force kernel instead (``_mda_arith.min_image_pairs``), in
+memory proportional to the output.  Where MDAnalysis's own ``nsgrid`` choice
+would raise "Cutoff ... too large for box", pairs at the cutoff are decided with
+the arithmetic of MDAnalysis's ``bruteforce`` method.  ``capped_distance`` of a
+group with itself (equal coordinates) decides each pair ``i < j`` once and
+mirrors it.
 
 Differences: pairs of ``self_capped_distance`` always have ``i < j`` (MDAnalysis's
 grid method returns some pairs as ``j, i``), row order is unspecified, and the
@@ -40,6 +44,8 @@ docs/dropins.md.
 """
 
 from __future__ import annotations
+
+import threading
 
 import numpy as np
 
@@ -176,23 +182,99 @@ def _decide_like_mdanalysis(ref, conf, a, b, dist, box32, max_cutoff, method):
 
 def _beyond_half_cell(cell, reach):
     """True if ``reach`` exceeds half the smallest perpendicular width of ``cell``:
-    the pair search then tests every pair (``_mda_arith.min_image_pairs``)
-    instead of enumerating periodic images."""
+    one pair then has several images in range, and the search returns every one
+    of them (``periodic_images="all"``) before the nearest is kept."""
     return cell is not None and reach > 0.5 * float(periodic.perpendicular_widths(cell).min())
 
 
-def _brute(ref, conf, cell, reach, max_cutoff, emulate, n_threads):
-    """Candidates by brute-force minimum image; without MDAnalysis's arithmetic
-    the float64 distance decides (``d <= max_cutoff``)."""
+#: the last search of each thread, kept for its next call (same range and images):
+#: its buffers and its record sizes are reused (an RDF calls once per frame); one
+#: that holds more than this many bytes is not kept
+_SEARCHES = threading.local()
+_KEEP_BYTES = 256 << 20
+
+
+def _search(kind, reach, images, n_threads):
+    """A NeighborSearch (``kind="neighbor"``) or ContactSearch for one call: this
+    thread's last one when it has the same settings."""
+    key = (kind, reach, images, n_threads)
+    last = getattr(_SEARCHES, "last", None)
+    if last is not None and last[0] == key:
+        return last[1]
+    if kind == "neighbor":
+        search = NeighborSearch(reach, periodic_images=images, n_threads=n_threads)
+    else:
+        search = ContactSearch(quantities="Pd", periodic_images=images, n_threads=n_threads)
+    _SEARCHES.last = (key, search)
+    return search
+
+
+#: beyond this many images per pair in range on average (the volume of the range
+#: over the cell's), every pair is tested directly (``_mda_arith.min_image_pairs``):
+#: nearly all pairs are in range then, and the engine's list of every image would
+#: outgrow the answer
+_IMAGES_PER_PAIR = 2.0
+
+
+def _many_images(cell, reach):
+    volume = abs(float(np.linalg.det(cell)))
+    return 4.0 / 3.0 * np.pi * reach ** 3 > _IMAGES_PER_PAIR * volume
+
+
+def _brute(ref, conf, cell, reach, n_threads):
+    """Pairs by brute-force minimum image, every pair tested (memory: the output)."""
     from ._numba import num_threads
 
     with num_threads(n_threads) as threads:
-        a, b, dist = _mda_arith.min_image_pairs(ref, conf, cell, reach * (1.0 + 1e-12),
-                                                threads)
-    if emulate is None:
-        keep = dist <= max_cutoff
-        a, b, dist = a[keep], b[keep], dist[keep]
-    return a, b, dist
+        return _mda_arith.min_image_pairs(ref, conf, cell, reach * (1.0 + 1e-12), threads)
+
+
+def _let_go_if_large(search):
+    """Keep no search whose buffers are large (the caller still holds its results)."""
+    last = getattr(_SEARCHES, "last", None)
+    if last is not None and last[1] is search and search.nbytes > _KEEP_BYTES:
+        _SEARCHES.last = None
+
+
+def _self_candidates(pos, cell, reach, n_threads, any_image=False):
+    """``(a, b, d)``: pairs ``a < b`` of ``pos`` whose minimum-image distance
+    ``d <= reach``, whatever the cutoff (beyond half the cell: every image within
+    reach from the engine, then the nearest per pair, or with ``any_image`` the
+    first, when MDAnalysis's arithmetic will decide and give the distance)."""
+    if _beyond_half_cell(cell, reach):
+        if _many_images(cell, reach):
+            a, b, d = _brute(pos, None, cell, reach, n_threads)
+            keep = d <= reach
+            return a[keep], b[keep], d[keep]
+        search = _search("neighbor", reach, "all", n_threads)
+        pairs, dist = search.update(pos, cell)
+        _let_go_if_large(search)
+        return _mda_arith.nearest_images(pairs, dist, len(pos), len(pos), drop_diagonal=True,
+                                         any_image=any_image)
+    search = _search("neighbor", reach, "minimum", n_threads)
+    pairs, dist = search.update(pos, cell)
+    _let_go_if_large(search)
+    return pairs[:, 0], pairs[:, 1], dist
+
+
+def _cross_candidates(ref, conf, cell, reach, n_threads, any_image=False):
+    """``(a, b, d)``: pairs of ``ref[a]`` and ``conf[b]`` within ``reach`` (minimum
+    image), from one search over both sets labelled so that only cross pairs
+    come out."""
+    n, m = len(ref), len(conf)
+    beyond = _beyond_half_cell(cell, reach)
+    if beyond and _many_images(cell, reach):
+        a, b, d = _brute(ref, conf, cell, reach, n_threads)
+        keep = d <= reach
+        return a[keep], b[keep], d[keep]
+    pos = np.concatenate([ref, conf])
+    labels = (np.arange(len(pos)) >= n).astype(np.int64)
+    search = _search("contact", reach, "all" if beyond else "minimum", n_threads)
+    pairs, dist = search.update(pos, np.full(len(pos), 0.5 * reach), cell, clump_ids=labels)
+    _let_go_if_large(search)
+    if beyond:
+        return _mda_arith.nearest_images(pairs, dist, n, m, shift=n, any_image=any_image)
+    return pairs[:, 0], pairs[:, 1] - n, dist
 
 
 def _finish(i, j, dist, min_cutoff, return_distances):
@@ -202,7 +284,7 @@ def _finish(i, j, dist, min_cutoff, return_distances):
     pairs = np.empty((len(i), 2), dtype=np.int64)
     pairs[:, 0] = i
     pairs[:, 1] = j
-    dist = np.ascontiguousarray(dist, dtype=np.float64)
+    dist = np.array(dist, dtype=np.float64)  # never a view of a kept search's buffer
     return (pairs, dist) if return_distances else pairs
 
 
@@ -268,12 +350,7 @@ def self_capped_distance(reference, max_cutoff, min_cutoff=None, box=None, metho
     n_threads = check_n_threads(n_threads)
     emulate = _mda_box32(box) if len(pos) > 1 else None
     reach = max_cutoff * (1.0 + _mda_arith.WIDEN) if emulate is not None else max_cutoff
-    beyond = _beyond_half_cell(cell, reach)
-    if beyond:
-        a, b, dist = _brute(pos, None, cell, reach, max_cutoff, emulate, n_threads)
-    else:
-        pairs, dist = NeighborSearch(reach, n_threads=n_threads).update(pos, cell)
-        a, b = pairs[:, 0], pairs[:, 1]
+    a, b, dist = _self_candidates(pos, cell, reach, n_threads, any_image=emulate is not None)
     if emulate is not None:
         a, b, dist = _decide_like_mdanalysis(pos, None, a, b, dist, emulate[0], max_cutoff,
                                              method)
@@ -337,24 +414,28 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
     if n == 0 or len(conf) == 0:
         return _finish(np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0),
                        min_cutoff, return_distances)
-    # the smaller set gets boxes of half-width max_cutoff, the other set points
-    # (zero-size boxes): a cross pair is in range iff d <= max_cutoff + 0, and the
-    # larger set produces no pairs among itself in the broad phase
     emulate = _mda_box32(box)
     reach = max_cutoff * (1.0 + _mda_arith.WIDEN) if emulate is not None else max_cutoff
-    beyond = _beyond_half_cell(cell, reach)
-    if beyond:
-        a, b, dist = _brute(ref, conf, cell, reach, max_cutoff, emulate, n_threads)
+    # the same coordinates twice (an RDF of a group with itself): the pairs i < j
+    # of one set, decided once and mirrored (MDAnalysis's arithmetic gives (j, i)
+    # the distance of (i, j) exactly: float32 differences and the image search
+    # are symmetric), plus every (i, i) at distance 0
+    mirror = n == len(conf) and np.array_equal(ref, conf)
+    any_image = emulate is not None
+    if mirror:
+        a, b, dist = _self_candidates(ref, cell, reach, n_threads, any_image)
     else:
-        # one search over both sets, labelled so that only cross pairs come out
-        pos = np.concatenate([ref, conf])
-        labels = (np.arange(len(pos)) >= n).astype(np.int64)
-        pairs, dist = ContactSearch(quantities="Pd", n_threads=n_threads).update(
-            pos, np.full(len(pos), 0.5 * reach), cell, clump_ids=labels)
-        a, b = pairs[:, 0], pairs[:, 1] - n
+        a, b, dist = _cross_candidates(ref, conf, cell, reach, n_threads, any_image)
     if emulate is not None:
         a, b, dist = _decide_like_mdanalysis(ref, conf, a, b, dist, emulate[0], given_cutoff,
                                              method)
+    else:
+        keep = dist <= max_cutoff
+        a, b, dist = a[keep], b[keep], dist[keep]
+    if mirror:
+        diag = np.arange(n, dtype=np.int64)
+        a, b = np.concatenate([a, b, diag]), np.concatenate([b, a, diag])
+        dist = np.concatenate([dist, dist, np.zeros(n)])
     return _finish(a, b, dist, min_cutoff, return_distances)
 
 

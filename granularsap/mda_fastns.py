@@ -151,7 +151,11 @@ class FastNS:
     """
 
     def __init__(self, cutoff, coords, box, pbc=True, *, n_threads=None):
-        self.cutoff = as_scalar(cutoff, "cutoff")
+        value = as_scalar(cutoff, "cutoff", nonnegative=False)
+        if value < 0:  # MDAnalysis's words first: code and tests match them
+            raise ValueError(f"Cutoff must be positive: cutoff must be non-negative, got "
+                             f"{value!r}")
+        self.cutoff = value
         self._coords = np.array(as_coords(coords, "coords"))  # a copy, as MDAnalysis
         if not isinstance(pbc, (bool, np.bool_)):
             raise TypeError(f"pbc must be True or False, got {pbc!r}")
@@ -167,8 +171,10 @@ class FastNS:
         if self.pbc:
             half = 0.5 * float(np.min(cell.perpendicular_widths))
             if self.cutoff > half:
-                raise ValueError(f"cutoff {self.cutoff!r} too large for box: at most half the "
-                                 f"smallest perpendicular cell width, {half!r}")
+                # "Cutoff {cutoff} too large for box (max ...)" with the cutoff as given,
+                # as MDAnalysis words it
+                raise ValueError(f"Cutoff {cutoff} too large for box (max {half!r}): at most "
+                                 "half the smallest perpendicular cell width")
         self._self = ContactSearch(skin=self.cutoff, quantities="Pd", n_threads=n_threads)
         self._cross = ContactSearch(skin=self.cutoff, quantities="Pd", n_threads=n_threads)
         self._self_result = None

@@ -36,7 +36,7 @@ import time
 import numba
 import numpy as np
 
-from . import periodic
+from . import _memory, periodic
 from ._numba import num_threads
 from ._validate import as_coords, as_scalar, as_vector, check_n_threads
 from .cell import Cell
@@ -450,6 +450,7 @@ class _Search:
         bad, extent = self._kern.wrap(positions, hinv, cell, diag, pbc, self._t, self._k,
                                       self._w, int(min(_MAX_CHUNKS, max(1, n // _CHUNK))))
         self._raise_bad(bad)
+        _memory.check_pair_memory(self, self._t, cell, pbc, 2.0 * float(rad.min()) + skin, labels)
         t, w = self._t, self._w
         extent = extent + reach_max + self._margin
         guard = _GUARD * extent + np.finfo(np.float64).tiny

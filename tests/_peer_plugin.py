@@ -4,7 +4,10 @@ Loaded with ``-p tests._peer_plugin`` by tests/test_peer_suites.py, in a
 separate pytest process that collects the peers' installed test modules.  On
 load it replaces ``ase.neighborlist.neighbor_list`` / ``primitive_neighbor_list``
 and ``MDAnalysis.lib.distances.capped_distance`` / ``self_capped_distance`` by
-granularsap's drop-ins (wrapped to count calls), and after collection it
+granularsap's drop-ins (wrapped to count calls), or with the peers
+``mdanalysis-fastns`` / ``ase-neighborlist`` the classes
+``MDAnalysis.lib.nsgrid.FastNS`` / ``ase.neighborlist.NeighborList`` (by
+counting subclasses of granularsap's), and after collection it
 replaces every other module-level binding of the originals (modules that did
 ``from MDAnalysis.lib.distances import capped_distance``).  Peer tests that
 cannot pass for a documented reason are marked xfail (strict) in ``XFAIL``;
@@ -44,8 +47,37 @@ def _substitute(module, names, dropins):
         setattr(module, name, replacement)
 
 
+def _counted_class(name, cls):
+    """A subclass of the drop-in class ``cls`` that counts its instances."""
+    def __init__(self, *args, **kwargs):
+        _CALLS[name] = _CALLS.get(name, 0) + 1
+        cls.__init__(self, *args, **kwargs)
+
+    return type(cls.__name__, (cls,), {"__init__": __init__, "__module__": cls.__module__,
+                                       "__doc__": cls.__doc__})
+
+
+def _substitute_class(module, name, cls):
+    original = getattr(module, name)
+    replacement = _counted_class(f"{module.__name__}.{name}", cls)
+    _ORIGINALS[id(original)] = (original, replacement)
+    setattr(module, name, replacement)
+
+
 def _install():
     peers = os.environ.get("GRANULARSAP_PEERS", "ase,mdanalysis").split(",")
+    if "mdanalysis-fastns" in peers:  # the class, not the functions
+        import MDAnalysis.lib.nsgrid
+
+        import granularsap.mda
+
+        _substitute_class(MDAnalysis.lib.nsgrid, "FastNS", granularsap.mda.FastNS)
+    if "ase-neighborlist" in peers:
+        import ase.neighborlist
+
+        import granularsap.ase
+
+        _substitute_class(ase.neighborlist, "NeighborList", granularsap.ase.NeighborList)
     if "ase" in peers:
         import ase.neighborlist
 

@@ -9,7 +9,8 @@ import pytest
 
 MODULES = ["granularsap.search", "granularsap.particles", "granularsap.api", "granularsap.cell",
            "granularsap.inputs", "granularsap.periodic", "granularsap.mda", "granularsap.ase",
-           "granularsap.ase_neighborlist", "granularsap.mda_fastns"]
+           "granularsap.ase_neighborlist", "granularsap.mda_fastns", "granularsap._memory",
+           "granularsap.io._lock"]
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -87,6 +87,28 @@ def test_mdanalysis_distance_tests(tmp_path):
     assert calls.get("MDAnalysis.lib.distances.self_capped_distance", 0) > 100
 
 
+def test_mdanalysis_nsgrid_tests_with_fastns_substituted(tmp_path):
+    # the class itself: MDAnalysis.lib.nsgrid.FastNS (and every module-level binding of
+    # it, MDAnalysis's own capped_distance grid paths included) is granularsap's
+    pytest.importorskip("MDAnalysisTests")
+    total, calls = _run_peer(tmp_path, "mdanalysis-fastns", "MDAnalysisTests",
+                             ["lib/test_nsgrid.py"])
+    assert total >= 30  # 34 in MDAnalysisTests 2.11
+    assert calls.get("MDAnalysis.lib.nsgrid.FastNS", 0) >= 30
+
+
+def test_ase_calculator_tests_with_neighborlist_substituted(tmp_path):
+    # ASE's calculators that build an ase.neighborlist.NeighborList (Lennard-Jones,
+    # Morse, EAM, EMT, Tersoff) and its NeighborList tests, on granularsap's class
+    pytest.importorskip("ase")
+    total, calls = _run_peer(tmp_path, "ase-neighborlist", "ase", [
+        "test/calculator/test_lj.py", "test/calculator/test_morse.py",
+        "test/calculator/test_eam.py", "test/calculator/test_tersoff.py",
+        "test/neighbor/test_neighbor_initialization.py"])
+    assert total >= 10
+    assert calls.get("ase.neighborlist.NeighborList", 0) > 5
+
+
 def test_mdanalysis_rdf_tests_serial_and_multiprocessing(tmp_path):
     # the multiprocessing backend forks after granularsap ran parallel kernels;
     # the dask backend's runs (client_InterRDF1, client_InterRDF_s1: a minute

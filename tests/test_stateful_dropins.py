@@ -456,9 +456,18 @@ class TestFastNSErrors:
             FastNS(1.0, np.zeros((2, 3)), [5, 5, 5, 90, 90, 90], pbc="yes")
 
     def test_cutoff_too_large(self):
-        with pytest.raises(ValueError, match=r"cutoff 3.0 too large for box: at most half the "
-                                              r"smallest perpendicular cell width, 2.5"):
+        with pytest.raises(ValueError, match=r"Cutoff 3.0 too large for box \(max 2.5\): at "
+                                              r"most half the smallest perpendicular cell "
+                                              r"width"):
             FastNS(3.0, np.zeros((2, 3)), [5, 6, 7, 90, 90, 90])
+
+    @pytest.mark.parametrize("cutoff, match", [(-4, "Cutoff must be positive"),
+                                               (100000, "Cutoff 100000 too large for box")])
+    def test_cutoff_errors_worded_like_mdanalysis(self, cutoff, match):
+        # MDAnalysisTests lib/test_nsgrid.py::test_nsgrid_badcutoff, with the class
+        # substituted (tests/test_peer_suites.py runs the original too)
+        with pytest.raises(ValueError, match=match):
+            FastNS(cutoff, np.zeros((2, 3)), [10, 10, 10, 90, 90, 90]).search(np.zeros((1, 3)))
 
     def test_search_coords_shape(self):
         ns = FastNS(1.0, np.zeros((2, 3)), [5, 5, 5, 90, 90, 90])

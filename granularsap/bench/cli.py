@@ -305,6 +305,13 @@ def run(args) -> int:
         return 0
     if not args.workloads:
         raise ValueError("give at least one WORKLOAD: " + ", ".join(WORKLOAD_NAMES) + ", all")
+    if "mda-capped" in args.workloads:
+        if len(args.workloads) > 1:
+            raise ValueError("run 'mda-capped' on its own: granularsap bench mda-capped "
+                             "[options]")
+        from .mda_capped import run_mda_capped
+
+        return int(run_mda_capped(args) or 0)
     if "paper" in args.workloads:
         if len(args.workloads) > 1:
             raise ValueError("run 'paper' on its own: granularsap bench paper [options]")

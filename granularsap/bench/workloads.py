@@ -310,8 +310,9 @@ WORKLOADS = {
 }
 
 #: every name the bench command accepts (``paper`` is the engine's own benchmark,
-#: ``dem-loop`` a DEM time loop against LAMMPS: granularsap.bench.demloop)
-WORKLOAD_NAMES = [*WORKLOADS, "data", "paper", "dem-loop"]
+#: ``dem-loop`` a DEM time loop against LAMMPS: granularsap.bench.demloop, ``mda-capped``
+#: the MDAnalysis drop-in against MDAnalysis: bench/mda_capped.py)
+WORKLOAD_NAMES = [*WORKLOADS, "data", "paper", "dem-loop", "mda-capped"]
 
 
 def make(name, n, *, seed=0, density=0.35, n_frames=50):

@@ -184,6 +184,8 @@ def run(args) -> int:
                                        on_plan=on_plan, on_warning=on_warning)
     except KeyError as exc:
         raise CLIError(exc.args[0] if exc.args else str(exc)) from None
+    except FileExistsError:  # another run finished it while this one started
+        raise CLIError(f"{args.output} already exists; use --force to overwrite it") from None
     except KeyboardInterrupt:
         if bar is not None:
             bar.close()

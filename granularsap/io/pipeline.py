@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import functools
 import itertools
 import logging
 import os
@@ -24,10 +25,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._frame import Frame
+from ._lock import OutputBusyError, lock_path, output_lock
 from .hdf5 import ContactsWriter, FrameResult, partial_path
 from .readers import TrajectoryError, count_frames, describe_format, iter_frames, resolve_format
 
-__all__ = ["DOMAIN_PARTICLES", "ContactParams", "check_output", "compute_contacts",
+__all__ = ["DOMAIN_PARTICLES", "ContactParams", "OutputBusyError", "check_output",
+           "compute_contacts",
            "domain_frame_contacts", "domain_threshold", "engine_cell", "frame_contacts"]
 
 #: Default frame size (particles) from which a distributed run splits every frame
@@ -500,6 +503,26 @@ def _nothing_selected(trajectory, format, topology, frames):
         f"{describe_format(trajectory, format, topology)}; frames are numbered from 0)")
 
 
+def _one_writer(func):
+    """Run ``func(trajectory, output, ...)`` holding the exclusive lock of ``output``.
+
+    The path checks come first (their messages beat a failed ``open`` of the
+    lock file); ``func`` checks again under the lock, where an output that
+    appeared meanwhile is final.
+    """
+    @functools.wraps(func)
+    def locked(trajectory, output, *args, overwrite=False, on_warning=None, **kwargs):
+        check_output(output, overwrite=overwrite)
+        if os.path.isdir(lock_path(output)):
+            raise IsADirectoryError(f"{lock_path(output)} is a directory; the run locks its "
+                                    "output under that name: remove or rename it")
+        with output_lock(output, on_warning=on_warning):
+            return func(trajectory, output, *args, overwrite=overwrite, on_warning=on_warning,
+                        **kwargs)
+    return locked
+
+
+@_one_writer
 def compute_contacts(trajectory, output, params: ContactParams, *, format=None, topology=None,
                      frames=None, resume=True, overwrite=False, workers=None, scheduler=None,
                      progress=None, on_resume=None, commit_seconds=1.0, should_stop=None,
@@ -562,6 +585,11 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
     IsADirectoryError, FileExistsError, FileNotFoundError, PermissionError
         ``output`` cannot be written (see :func:`check_output`); raised before
         any frame is read.
+    OutputBusyError
+        Another run is writing ``output`` (it holds ``output + '.lock'`` for
+        its whole run); raised at once, before anything is read or written.
+        The lock dies with its holder, so a killed run's partial state is
+        resumed by the next run.
     """
     trajectory = os.fspath(trajectory)
     output = os.fspath(output)
