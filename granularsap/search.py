@@ -416,13 +416,18 @@ class _Search:
                 cell = cell * scale
                 cs = _CellState(cell, pbc_arr)
         self._margin = self.rebuild_margin * scale
-        threads = self.n_threads
-        if threads is None and n < _PARALLEL_MIN:
-            threads = 1
-        with num_threads(threads) as threads:
-            self._kern = grid.serial if threads == 1 else grid
+        if self._takes_small(n, minimum):  # serial kernels only: no thread setting
+            self._kern = grid.serial
             result = self._run(positions, rad, skin, cs, labels, n, rmax, reach_max, minimum,
-                               threads, t_start, scale)
+                               1, t_start, scale)
+        else:
+            threads = self.n_threads
+            if threads is None and n < _PARALLEL_MIN:
+                threads = 1
+            with num_threads(threads) as threads:
+                self._kern = grid.serial if threads == 1 else grid
+                result = self._run(positions, rad, skin, cs, labels, n, rmax, reach_max,
+                                   minimum, threads, t_start, scale)
         if scale != 1.0:
             if self.layout == "pairs":
                 # once per buffer: a quantity asked for twice is the same view
@@ -434,6 +439,11 @@ class _Search:
         if copy:
             result = tuple(np.array(r) for r in result)
         return result[0] if len(result) == 1 else result
+
+    def _takes_small(self, n, minimum):
+        """Whether this frame runs the small-frame kernels (``_small``)."""
+        return (0 < n <= self._small_max and self._margin == 0.0 and minimum
+                and self.path != "sweep" and self._levels is True and self._split == 1)
 
     def _cell_state(self, box, pbc):
         """The resolved cell of ``box`` and ``pbc`` with what every frame derives from
@@ -498,8 +508,7 @@ class _Search:
         tested = None
         self._direct_done = False
         if reason is not None:
-            if (n and 0 < n <= self._small_max and margin == 0.0 and minimum
-                    and self.path != "sweep" and self._levels is True and self._split == 1):
+            if self._takes_small(n, minimum):
                 tested = self._small(positions, rad, skin, cs, labels, n, rmax, key, times)
             else:
                 tested = self._build(positions, rad, skin, cell_k, hinv, diag, pbc, labels,
@@ -518,7 +527,7 @@ class _Search:
             "path_reason": self._path_reason, "levels": 1 if self._r_small is None else 2,
             "rebuilt": reason is not None, "reason": reason or "within the rebuild margin",
             "rebuilds": self._rebuilds, "max_displacement": max_disp,
-            "verlet_entries": int(self._vneed.sum()) if n else 0,
+            "verlet_entries": int(self._vneed.sum()) if len(self._vneed) else 0,
             "candidates_tested": tested, "pairs": total, "seconds": times,
             "columns": self._grid_shape, "predicted_cpp": self._cpp[0],
         }
@@ -1126,11 +1135,12 @@ class NeighborSearch(_Search):
         column sweep (a sweep along one axis inside columns over the other
         two); ``"sweep"``: the paper's parallel bi-dimensional Sweep and
         Prune over the particles' bounding cubes, with ghost cubes for
-        periodic images.  ``"auto"`` (default) takes the column sweep, tries
-        the paper's sweep when the column sweep tests many candidates per pair
-        (sparse, widely polydisperse frames), and keeps the faster of the two
-        as measured; ``stats["path"]`` and ``stats["path_reason"]`` say which
-        and why.  Results are the same on every path.
+        periodic images.  ``"auto"`` (default) decides from the frame alone:
+        the column sweep, unless the column plan predicts very many
+        candidates per pair and per particle on a large frame; no timing
+        enters, so the same input gets the same path in every process and
+        with any thread count.  ``stats["path"]`` and ``stats["path_reason"]``
+        say which and why.  Results are the same on every path.
 
     identity : bool, optional
         Follow pairs across calls: after each :meth:`update`,

@@ -61,7 +61,7 @@ def test_small_frames_equal_the_general_path_and_the_oracle(pts, rad, cell, skin
     # quarter-integer coordinates and dyadic radii: touching spheres are exact ties;
     # 0, 1 and 2 particles included; the tiny cell is barely wider than the range
     pos = np.asarray(pts, dtype=float).reshape(-1, 3) / 4.0
-    radii = np.asarray(rad[: len(pos)], dtype=float) / 8.0
+    radii = np.asarray(rad[: len(pos)], dtype=float) / (16.0 if cell == "tiny" else 8.0)
     box, pbc = CELLS[cell]
     (small, s_stats), (general, g_stats) = _pair(pos, radii, box, pbc, skin=skin,
                                                  n_threads=n_threads, path=path)
@@ -182,3 +182,17 @@ def test_far_outside_the_cell_is_named_on_the_small_path():
     pos = np.array([[0.0, 0, 0], [1.0, 0, 0], [2.0 ** 60, 0, 0]])
     with pytest.raises(ValueError, match=r"positions row 2 .* outside the cell"):
         NeighborSearch(1.5).update(pos, [5.0] * 3 + [90.0] * 3)
+
+
+def test_bench_repeats_a_small_frame_and_reports_its_minimum():
+    from granularsap.bench import harness, workloads
+    from granularsap.bench.peers import make_peers
+
+    wl = workloads.make("granular-polydisperse", 200)
+    (peer,) = make_peers(["granularsap-steady"])
+    many = harness.run_peer(peer, wl, repeats=3, small_runs=20)
+    assert len(many.times) == 20 and many.min_seconds == min(many.times)
+    assert many.min_seconds <= many.seconds
+    (peer,) = make_peers(["granularsap-steady"])
+    few = harness.run_peer(peer, wl, repeats=3)
+    assert len(few.times) == 3
