@@ -441,9 +441,15 @@ class _Search:
         return result[0] if len(result) == 1 else result
 
     def _takes_small(self, n, minimum):
-        """Whether this frame runs the small-frame kernels (``_small``)."""
-        return (0 < n <= self._small_max and self._margin == 0.0 and minimum
-                and self.path != "sweep" and self._levels is True and self._split == 1)
+        """Whether this frame runs the small-frame kernels (``_small``): few
+        particles, no Verlet margin, and one thread asked for (or implied: no
+        ``n_threads`` below ``_PARALLEL_MIN``), or too few particles for a second
+        chunk of parallel work."""
+        if not (0 < n <= self._small_max and self._margin == 0.0 and minimum
+                and self.path != "sweep" and self._levels is True and self._split == 1):
+            return False
+        one = self.n_threads == 1 or (self.n_threads is None and n < _PARALLEL_MIN)
+        return one or n < 2 * _CHUNK
 
     def _cell_state(self, box, pbc):
         """The resolved cell of ``box`` and ``pbc`` with what every frame derives from
@@ -510,7 +516,7 @@ class _Search:
         if reason is not None:
             if self._takes_small(n, minimum):
                 tested = self._small(positions, rad, skin, cs, labels, n, rmax, key, times)
-            else:
+            if tested is None:
                 tested = self._build(positions, rad, skin, cell_k, hinv, diag, pbc, labels,
                                      n, rmax, reach_max, minimum, key, times)
             self._rebuilds += 1
@@ -732,7 +738,7 @@ class _Search:
         sc = self._small_scratch
         if sc is None or len(sc[0]) < n + 2:
             sc = self._small_scratch = (np.empty(n + 2, np.int64), np.empty(n + 2, np.int64),
-                                        np.empty(n, np.uint8), np.empty((4, 2), np.int64))
+                                        np.empty(n, np.uint8), np.empty((12, 2), np.int64))
         start, cursor, big, stencil = sc
         if getattr(self, "_words", None) is None or len(self._words) < n + 64:
             self._records(4 * n + 1024)
@@ -743,6 +749,8 @@ class _Search:
                 r_small or 0.0, fresh, prev, self._t, self._k, self._w, self._col, perm, start,
                 cursor, self._tz, self._xs, self._ys, self._zs, self._rs, self._ls, big,
                 stencil, self._words, self._rec_p, self._rec_q, self._rec_s)
+            if bad == -2:  # a plan of more than one column layer: the general path
+                return None
             self._raise_bad(bad)
             if need <= len(self._words):
                 break

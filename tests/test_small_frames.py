@@ -196,3 +196,28 @@ def test_bench_repeats_a_small_frame_and_reports_its_minimum():
     (peer,) = make_peers(["granularsap-steady"])
     few = harness.run_peer(peer, wl, repeats=3)
     assert len(few.times) == 3
+
+
+def test_two_threads_above_one_chunk_keep_the_parallel_path():
+    # n_threads=2 asked for with more particles than one chunk of parallel work:
+    # the general path on two threads, the same rows as the serial small path
+    pos, radii, length = _granular(5000, 9)
+    box = [length] * 3 + [90.0] * 3
+    one = ContactSearch(quantities="PdD", n_threads=1)
+    two = ContactSearch(quantities="PdD", n_threads=2)
+    a = one.update(pos, radii, box, copy=True)
+    b = two.update(pos, radii, box, copy=True)
+    assert one.stats["threads"] == 1 and two.stats["threads"] == 2
+    _same(a, b)
+
+
+def test_a_plan_wider_than_the_small_stencil_falls_back():
+    # the small path keeps room for the stencils of one or two column layers;
+    # a plan needing more (here: no room at all) runs the general path instead
+    pos, radii, length = _granular(800, 10)
+    box = [length] * 3 + [90.0] * 3
+    s = ContactSearch(quantities="PdDS")
+    want = s.update(pos, radii, box, copy=True)
+    s._small_scratch = s._small_scratch[:3] + (np.empty((0, 2), np.int64),)
+    _same(s.update(pos, radii, box, copy=True), want)
+    assert s.stats["seconds"]["sort"] > 0.0  # the general path's own sort ran

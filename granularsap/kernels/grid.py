@@ -922,8 +922,9 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
     """Wrap, plan, sort, gather and sweep one frame (serial, minimum image, no
     Verlet list): the steps of ``search._build`` and ``direct_count`` on one
     chunk.  ``r_small > 0`` asks for two column levels split at that radius.
-    Returns (first bad input row or -1, pairs, candidates tested, records
-    needed, nb0, nb1); the records are kept while they fit ``words``."""
+    Returns (first bad input row, -1, or -2 for a stencil larger than
+    ``stencil``; pairs, candidates tested, records needed, nb0, nb1); the
+    records are kept while they fit ``words``."""
     n = x.shape[0]
     bad = -1
     extent = 0.0
@@ -1009,7 +1010,9 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
                     stencil[n_st, 1] = o1
                 n_st += 1
     if n_st > stencil.shape[0]:
-        return -2, 0, 0, 0, nb0, nb1  # (no plan of one range needs more)
+        # columns a rounding narrower than the range can need two layers: the
+        # caller has room for those; anything wider goes to the general path
+        return -2, 0, 0, 0, nb0, nb1
     stencil_big = np.empty(((2 * B0 + 1) * (2 * B1 + 1) if levels else 0, 2), np.int64)
     if levels:
         j = 0
