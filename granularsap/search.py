@@ -158,7 +158,7 @@ def _predict_cpp(occ, n_stencil, n_stencil_big, widths, span, volume, rad, skin,
     n = len(rad)
     if n == 0 or not volume > 0:
         return 0.0, 0.0
-    s2 = float(np.dot(occ, occ))
+    s2 = float((occ * occ).sum())
 
     def window(r):
         return min(1.0, 2.0 * (2.0 * r + reach) / widths[2] / span[2])
@@ -170,10 +170,13 @@ def _predict_cpp(occ, n_stencil, n_stencil_big, widths, span, volume, rad, skin,
         per = ((n - n_big) * (n_stencil + 0.5) * window(r_small)
                + n_big * n_stencil_big * window(rmax)) / n
     cand = s2 * per
+    # plain reductions, not BLAS (np.dot): BLAS threads would spin on the
+    # cores the parallel kernels are about to use
     a = rad + 0.5 * skin
+    a2 = a * a
     m1 = float(a.sum()) / n
-    m2 = float(np.dot(a, a)) / n
-    m3 = float(np.dot(a * a, a)) / n
+    m2 = float(a2.sum()) / n
+    m3 = float((a2 * a).sum()) / n
     sphere = 4.0 / 3.0 * math.pi * (2.0 * m3 + 6.0 * m1 * m2)
     pairs = 0.5 * s2 * len(occ) / volume * sphere
     if not pairs > 0:
@@ -789,8 +792,12 @@ class _Search:
         open_axes = ~cs.pbc
         span = 1.0
         if open_axes.any():
-            frac = positions @ cs.hinv[:, open_axes] if not cs.diag else (
-                positions[:, open_axes] / np.diag(cs.cell_k)[open_axes])
+            if cs.diag:
+                frac = positions[:, open_axes] / np.diag(cs.cell_k)[open_axes]
+            else:  # (a sum of products, not a BLAS product: no BLAS threads)
+                h = cs.hinv[:, open_axes]
+                frac = (positions[:, 0:1] * h[0] + positions[:, 1:2] * h[1]
+                        + positions[:, 2:3] * h[2])
             span = float(np.prod(frac.max(axis=0) - frac.min(axis=0)))
         memo = getattr(self, "_split_memo", None)
         key = (n, skin, span, cs.key)
