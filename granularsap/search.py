@@ -799,12 +799,12 @@ class _Search:
                 frac = (positions[:, 0:1] * h[0] + positions[:, 1:2] * h[1]
                         + positions[:, 2:3] * h[2])
             span = float(np.prod(frac.max(axis=0) - frac.min(axis=0)))
-        memo = getattr(self, "_split_memo", None)
+        memo = getattr(self, "_small_split_memo", None)
         key = (n, skin, span, cs.key)
         if memo is not None and memo[0] == key and np.array_equal(memo[1], rad):
             return memo[2]
         r_small = _level_split(rad, rmax, skin, n, span * cs.det)
-        self._split_memo = (key, rad.copy(), r_small)
+        self._small_split_memo = (key, rad.copy(), r_small)
         return r_small
 
     def _records(self, size):
