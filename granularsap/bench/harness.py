@@ -51,7 +51,7 @@ HASH_LIMIT = 100_000_000
 
 PHASES = ("sort", "candidates", "pairing")
 #: runs faster than this (median of the planned repeats) are small frames ...
-SMALL_SECONDS = 0.005
+SMALL_SECONDS = 0.02
 #: ... repeated up to this many steady runs ...
 SMALL_RUNS = 200
 #: ... within this many more seconds
