@@ -760,7 +760,7 @@ class _Search:
             self._records(need + need // 8 + 64)
         self._perm = perm
         self._perm_buf = prev if not fresh else np.empty(n, np.int64)
-        q = self.quantities
+        q = self._computed
         if "S" in q:
             np.take(self._k, perm, axis=0, out=self._ks)
         t1 = time.perf_counter()
