@@ -48,10 +48,12 @@ __all__ = ["ContactSearch", "NeighborSearch"]
 _QUANTITIES = "Pijd DS".replace(" ", "")
 _LAYOUTS = ("pairs", "csr")
 _PATHS = ("auto", "columns", "sweep")
-#: ``path="auto"`` tries the paper's sweep when the column sweep tests more
-#: candidates per pair than this, and measures both again after this many builds
-_SWEEP_TRIAL_CPP = 50.0
-_RETRIAL = 256
+#: ``path="auto"`` takes the paper's sweep where the column plan predicts more
+#: candidates per pair and per particle than these, on at least _SWEEP_MIN_N
+#: particles (measured: docs/engine.md, "Two paths, chosen per build")
+_SWEEP_CPP = 1000.0
+_SWEEP_PER_PARTICLE = 200.0
+_SWEEP_MIN_N = 50000
 _IMAGES = ("minimum", "all")
 #: relative guard on the Verlet range against rounding (the exact test decides)
 _GUARD = 64 * np.finfo(np.float64).eps
@@ -62,6 +64,10 @@ _MAX_BINS = 1 << 16
 _NO_BIG = np.zeros(0, np.uint8)
 #: below this many particles one thread runs (a parallel region costs more)
 _PARALLEL_MIN = 20000
+#: frames of up to this many particles (no Verlet margin, minimum image) are
+#: built by two serial kernels (``grid.small_count``, ``grid.small_fill``)
+_SMALL_MAX = 20000
+_NO_ENTRIES = np.zeros(0, np.int64)
 
 
 def _check_quantities(quantities):
@@ -134,6 +140,50 @@ def _level_split(rad, rmax, reach, n, volume):
     return choice if best < single * 0.75 else None
 
 
+def _predict_cpp(occ, n_stencil, n_stencil_big, widths, span, volume, rad, skin, reach,
+                 rmax, r_small):
+    """Candidates the column sweep will test per pair it finds, predicted from the
+    column plan before the sweep runs (a deterministic function of the frame).
+
+    Candidates: every particle of a column meets the particles of its stencil
+    columns (``occ`` of its own column each, the local density) inside a
+    window ``2 (2 r + reach) / w_2`` of the sweep axis, its own column forward
+    only; with two levels the large ones walk the full wide stencil with the
+    largest window.  Pairs: the same local density over the column volume
+    times the mean volume of a pair's range sphere, ``4/3 pi E[(a_i + a_j)^3]
+    = 4/3 pi (2 m3 + 6 m1 m2)`` from the moments of ``a = r + skin / 2``.
+    Returns (candidates per pair, candidates per particle), or (0, 0) without
+    particles or volume.
+    """
+    n = len(rad)
+    if n == 0 or not volume > 0:
+        return 0.0, 0.0
+    s2 = float((occ * occ).sum())
+
+    def window(r):
+        return min(1.0, 2.0 * (2.0 * r + reach) / widths[2] / span[2])
+
+    if r_small is None:
+        per = (n_stencil + 0.5) * window(rmax)
+    else:
+        n_big = int(np.count_nonzero(rad > r_small))
+        per = ((n - n_big) * (n_stencil + 0.5) * window(r_small)
+               + n_big * n_stencil_big * window(rmax)) / n
+    cand = s2 * per
+    # plain reductions, not BLAS (np.dot): BLAS threads would spin on the
+    # cores the parallel kernels are about to use
+    a = rad + 0.5 * skin
+    a2 = a * a
+    m1 = float(a.sum()) / n
+    m2 = float(a2.sum()) / n
+    m3 = float((a2 * a).sum()) / n
+    sphere = 4.0 / 3.0 * math.pi * (2.0 * m3 + 6.0 * m1 * m2)
+    pairs = 0.5 * s2 * len(occ) / volume * sphere
+    if not pairs > 0:
+        return math.inf, cand / n
+    return cand / pairs, cand / n
+
+
 def _exact_bound(rad, skin, strict):
     """(uniform, x2): whether every pair has one threshold ``2 r + skin``, and then
     the squared bound that decides it exactly (``_square_bound``)."""
@@ -171,8 +221,36 @@ def _resolve_cell(box, pbc):
     return full, np.array(cell.pbc, dtype=bool)
 
 
+class _CellState:
+    """A resolved cell and what every frame derives from it (kept between frames
+    while the same cell comes back)."""
+
+    __slots__ = ("cell", "pbc", "cell_k", "diag", "hinv", "widths", "key", "narrowest",
+                 "magnitude", "min_periodic_width", "det")
+
+    def __init__(self, cell, pbc):
+        self.cell, self.pbc = cell, pbc
+        cell_k = cell if cell is not None else np.eye(3)
+        self.cell_k = cell_k
+        self.diag = not np.any(cell_k - np.diag(np.diag(cell_k)))
+        self.hinv = np.ascontiguousarray(np.linalg.inv(cell_k)) if not self.diag else np.eye(3)
+        self.widths = periodic.perpendicular_widths(cell_k)
+        self.key = cell_k.tobytes() + pbc.tobytes()
+        axes = np.flatnonzero(pbc)
+        self.narrowest = [int(c) for c in axes[np.argsort(self.widths[axes], kind="stable")][:1]]
+        self.magnitude = float(np.abs(cell).max()) if cell is not None else 0.0
+        self.min_periodic_width = float(self.widths[pbc].min()) if pbc.any() else math.inf
+        self.det = abs(float(np.linalg.det(cell_k)))
+
+
 class _Search:
     """What NeighborSearch and ContactSearch share: state, rebuilds, outputs."""
+
+    #: frames of up to this many particles without a Verlet margin take the
+    #: serial two-call path (``_small``); tests set 0 to force the general one
+    _small_max = _SMALL_MAX
+    _cell_memo = None
+    _small_scratch = None
 
     def __init__(self, *, rebuild_margin, quantities, layout, n_threads, periodic_images,
                  include_cutoff, path, identity=False):
@@ -214,7 +292,6 @@ class _Search:
             raise ValueError(f"path must be one of {', '.join(map(repr, _PATHS))}, got {path!r}")
         self.path = path
         self._sweeper = None
-        self._auto = {"columns": None, "sweep": None, "cpp": None, "since": 0, "key": None}
         self.stats = {}
         self._frames = 0
         self._rebuilds = 0
@@ -304,17 +381,17 @@ class _Search:
     # --------------------------------------------------------------- frame
     def _frame(self, positions, rad, skin, box, pbc, labels, copy):
         t_start = time.perf_counter()
-        cell, pbc_arr = _resolve_cell(box, pbc)
+        cs = self._cell_state(box, pbc)
+        cell, pbc_arr = cs.cell, cs.pbc
         n = len(positions)
         minimum = self.periodic_images == "minimum"
         rmax = float(rad.max()) if n else 0.0
         reach_max = 2.0 * rmax + skin
         periodic_run = cell is not None
         if periodic_run and minimum:
-            widths = periodic.perpendicular_widths(cell)
-            periodic_axes = np.flatnonzero(pbc_arr)
+            widths = cs.widths
             # the narrowest periodic axis (the one the message names as the smallest)
-            for c in periodic_axes[np.argsort(widths[periodic_axes], kind="stable")][:1]:
+            for c in cs.narrowest:
                 if reach_max > 0.5 * widths[c] * (1.0 + 1e-12):
                     raise ValueError(
                         f"{self._what} {reach_max:.17g} exceeds half the smallest "
@@ -327,8 +404,8 @@ class _Search:
         # they underflow) are scaled by a power of two, which is exact: every
         # comparison and every distance is the same as in unbounded arithmetic.
         self._given = positions  # as the caller gave them, for messages
-        mag = max(float(np.abs(positions).max()) if n else 0.0, reach_max,
-                  float(np.abs(cell).max()) if cell is not None else 0.0)
+        mag = max(max(float(positions.max()), -float(positions.min())) if n else 0.0,
+                  reach_max, cs.magnitude)
         scale = 1.0
         if mag > 2.0 ** 500 or 0.0 < mag < 2.0 ** -500:
             # (at most 2**1000: a subnormal magnitude still lands well above 2**-500)
@@ -340,14 +417,20 @@ class _Search:
             reach_max *= scale
             if cell is not None:
                 cell = cell * scale
+                cs = _CellState(cell, pbc_arr)
         self._margin = self.rebuild_margin * scale
-        threads = self.n_threads
-        if threads is None and n < _PARALLEL_MIN:
-            threads = 1
-        with num_threads(threads) as threads:
-            self._kern = grid.serial if threads == 1 else grid
-            result = self._run(positions, rad, skin, cell, pbc_arr, labels, n, rmax,
-                               reach_max, minimum, threads, t_start, scale)
+        if self._takes_small(n, minimum):  # serial kernels only: no thread setting
+            self._kern = grid.serial
+            result = self._run(positions, rad, skin, cs, labels, n, rmax, reach_max, minimum,
+                               1, t_start, scale)
+        else:
+            threads = self.n_threads
+            if threads is None and n < _PARALLEL_MIN:
+                threads = 1
+            with num_threads(threads) as threads:
+                self._kern = grid.serial if threads == 1 else grid
+                result = self._run(positions, rad, skin, cs, labels, n, rmax, reach_max,
+                                   minimum, threads, t_start, scale)
         if scale != 1.0:
             if self.layout == "pairs":
                 # once per buffer: a quantity asked for twice is the same view
@@ -360,18 +443,52 @@ class _Search:
             result = tuple(np.array(r) for r in result)
         return result[0] if len(result) == 1 else result
 
-    def _run(self, positions, rad, skin, cell, pbc, labels, n, rmax, reach_max, minimum,
+    def _takes_small(self, n, minimum):
+        """Whether this frame runs the small-frame kernels (``_small``): few
+        particles, no Verlet margin, and one thread asked for (or implied: no
+        ``n_threads`` below ``_PARALLEL_MIN``), or too few particles for a second
+        chunk of parallel work."""
+        if not (0 < n <= self._small_max and self._margin == 0.0 and minimum
+                and self.path != "sweep" and self._levels is True and self._split == 1):
+            return False
+        one = self.n_threads == 1 or (self.n_threads is None and n < _PARALLEL_MIN)
+        return one or n < 2 * _CHUNK
+
+    def _cell_state(self, box, pbc):
+        """The resolved cell of ``box`` and ``pbc`` with what every frame derives from
+        it, kept while the same cell comes back (the same Cell, or an array or list
+        with the same values)."""
+        if box is None or isinstance(box, Cell):
+            key = (box, None)
+        elif isinstance(box, (np.ndarray, list, tuple)):
+            arr = np.asarray(box)
+            key = (None, (arr.shape, arr.dtype.str, arr.tobytes()))
+        else:  # an ase.Atoms or anything else: resolved every time
+            key = None
+        if pbc is not None and key is not None:
+            if isinstance(pbc, (bool, np.bool_)):
+                key += (bool(pbc),)
+            else:
+                p = np.asarray(pbc)
+                key += ((p.shape, p.dtype.str, p.tobytes()),)
+        last = self._cell_memo
+        if key is not None and last is not None and last[0][0] is key[0] and last[0][1:] == key[1:]:
+            return last[1]
+        state = _CellState(*_resolve_cell(box, pbc))
+        self._cell_memo = None if key is None else (key, state)
+        return state
+
+    def _run(self, positions, rad, skin, cs, labels, n, rmax, reach_max, minimum,
              threads, t_start, scale):
         self._frames += 1
-        cell_k = cell if cell is not None else np.eye(3)
-        diag = not np.any(cell_k - np.diag(np.diag(cell_k)))
-        hinv = np.ascontiguousarray(np.linalg.inv(cell_k)) if not diag else np.eye(3)
-        key = (n, cell_k.tobytes(), pbc.tobytes(), skin, minimum, self.include_cutoff,
-               labels is not None, scale)
+        cell, pbc = cs.cell, cs.pbc
+        cell_k, diag, hinv = cs.cell_k, cs.diag, cs.hinv
+        key = (n, cs.key, skin, minimum, self.include_cutoff, labels is not None, scale)
         self._alloc_particles(n)
         if n == 0:
             self._path_now = "columns" if self.path == "auto" else self.path
             self._path_reason, self._r_small = "no particles", None
+            self._cpp = (0.0, 0.0)
         margin = self._margin
         reason = None
         if self._key != key:
@@ -400,28 +517,28 @@ class _Search:
         tested = None
         self._direct_done = False
         if reason is not None:
-            tested = self._build(positions, rad, skin, cell_k, hinv, diag, pbc, labels,
-                                 n, rmax, reach_max, minimum, key, times)
+            if self._takes_small(n, minimum):
+                tested = self._small(positions, rad, skin, cs, labels, n, rmax, key, times)
+            if tested is None:
+                tested = self._build(positions, rad, skin, cell_k, hinv, diag, pbc, labels,
+                                     n, rmax, reach_max, minimum, key, times)
             self._rebuilds += 1
         t0 = time.perf_counter()
         total = self._direct_total if self._direct_done else self._narrow(skin, cell_k, diag)
         if (cell is not None and minimum and total
-                and 2.0 * reach_max >= periodic.perpendicular_widths(cell_k)[pbc].min()
-                * (1.0 - 1e-9)):
+                and 2.0 * reach_max >= cs.min_periodic_width * (1.0 - 1e-9)):
             total = self._dedup(total)
         times["narrow"] = time.perf_counter() - t0
         result = self._results(total)
         times["total"] = time.perf_counter() - t_start
-        if reason is not None and n:
-            self._measured(tested, total, times["total"], n)
         self.stats = {
             "frame": self._frames, "n": n, "threads": threads, "path": self._path_now,
             "path_reason": self._path_reason, "levels": 1 if self._r_small is None else 2,
             "rebuilt": reason is not None, "reason": reason or "within the rebuild margin",
             "rebuilds": self._rebuilds, "max_displacement": max_disp,
-            "verlet_entries": int(self._vneed.sum()) if n else 0,
+            "verlet_entries": int(self._vneed.sum()) if len(self._vneed) else 0,
             "candidates_tested": tested, "pairs": total, "seconds": times,
-            "columns": self._grid_shape,
+            "columns": self._grid_shape, "predicted_cpp": self._cpp[0],
         }
         return result
 
@@ -537,7 +654,11 @@ class _Search:
         self._perm = perm
         use_label = labels is not None
         lab = labels if use_label else self._ls
-        path, self._path_reason = self._choose_path(n, minimum)
+        occ = np.diff(start)
+        self._cpp = _predict_cpp(occ, len(stencil), len(stencil_big), widths, span,
+                                 float(np.prod(span)) * abs(float(np.linalg.det(cell))),
+                                 rad, skin, reach, rmax, r_small)
+        path, self._path_reason = self._choose_path(n, minimum, self._cpp)
         self._path_now = path
         direct = self._margin == 0.0 and path == "columns"
         if direct:  # straight into the layout the column sweep reads
@@ -559,7 +680,7 @@ class _Search:
         # a column's particles times those of its 3 x 3 neighbourhood (uniform
         # frames: equal particle counts); they depend on the input only
         n_chunks = int(min(ncol, max(1, n // _CHUNK), _MAX_CHUNKS))
-        occ = np.diff(start).reshape(nb0, nb1).astype(np.float64)
+        occ = occ.reshape(nb0, nb1).astype(np.float64)
         near = occ.copy()
         for s0 in (-1, 0, 1):
             for s1 in (-1, 0, 1):
@@ -596,6 +717,103 @@ class _Search:
         self._vneed = counts
         times["build"] = time.perf_counter() - t1
         return int(tested.sum())
+
+    def _small(self, positions, rad, skin, cs, labels, n, rmax, key, times):
+        """A frame of few particles without a Verlet margin: one serial kernel wraps,
+        plans the columns, sorts, gathers and runs pass 1 of the column sweep
+        (``grid.small_count``), a second writes the outputs (``grid.small_fill``).
+        They run the general path's sweep on one chunk, so the answer is that
+        of ``_build`` + ``_direct`` bit for bit, rows in the same order."""
+        t0 = time.perf_counter()
+        self._key = key
+        kept = getattr(self, "_rad", None)
+        if kept is None or kept.shape != rad.shape:
+            self._rad = rad.copy()
+        else:
+            np.copyto(kept, rad)
+        self._labels = None if labels is None else labels.copy()
+        use_label = labels is not None
+        strict = not self.include_cutoff
+        uniform, x2 = _exact_bound(rad, skin, strict)
+        r_small = None if uniform else self._small_levels(positions, rad, rmax, skin, cs, n)
+        fresh = self._perm is None or len(self._perm) != n
+        prev = self._perm_buf if fresh else self._perm
+        perm = self._perm_buf if not fresh else np.empty(n, np.int64)
+        sc = self._small_scratch
+        if sc is None or len(sc[0]) < n + 2:
+            sc = self._small_scratch = (np.empty(n + 2, np.int64), np.empty(n + 2, np.int64),
+                                        np.empty(n, np.uint8), np.empty((12, 2), np.int64))
+        start, cursor, big, stencil = sc
+        if getattr(self, "_words", None) is None or len(self._words) < n + 64:
+            self._records(4 * n + 1024)
+        while True:
+            bad, total, tested, need, nb0, nb1 = grid.small_count(
+                positions, rad, labels if use_label else self._ls, use_label, cs.cell_k,
+                cs.hinv, cs.diag, cs.pbc, cs.widths, skin, strict, uniform, x2, _GUARD,
+                r_small or 0.0, fresh, prev, self._t, self._k, self._w, self._col, perm, start,
+                cursor, self._tz, self._xs, self._ys, self._zs, self._rs, self._ls, big,
+                stencil, self._words, self._rec_p, self._rec_q, self._rec_s)
+            if bad == -2:  # a plan of more than one column layer: the general path
+                return None
+            self._raise_bad(bad)
+            if need <= len(self._words):
+                break
+            self._records(need + need // 8 + 64)
+        self._perm = perm
+        self._perm_buf = prev if not fresh else np.empty(n, np.int64)
+        q = self._computed
+        if "S" in q:
+            np.take(self._k, perm, axis=0, out=self._ks)
+        t1 = time.perf_counter()
+        self._alloc_output(total)
+        grid.small_fill(need, self._words, self._rec_p, self._rec_q, self._rec_s, self._xs,
+                        self._ys, self._zs, self._rs, self._ls, use_label, cs.cell_k, cs.diag,
+                        skin, strict, uniform, x2, perm, self._ks, "d" in q, "D" in q,
+                        "S" in q, self._out_p, self._out_d, self._out_v, self._out_s)
+        self._direct_done = True
+        self._direct_total = total
+        self._vneed = _NO_ENTRIES
+        self._grid_shape = (int(nb0), int(nb1))
+        self._r_small = r_small
+        self._cpp = (None, None)
+        self._path_now = "columns"
+        self._path_reason = (f"path={self.path!r} given" if self.path != "auto" else (
+            f"{n} particles: the column sweep (the paper's sweep is considered from "
+            f"{_SWEEP_MIN_N} particles)"))
+        times["sort"] = times["build"] = 0.0
+        times["count"] = t1 - t0
+        times["fill"] = time.perf_counter() - t1
+        return int(tested)
+
+    def _small_levels(self, positions, rad, rmax, skin, cs, n):
+        """``_level_split`` for a small frame, kept while the radii, the cell and
+        the extent along open axes are the same."""
+        if n < 1000:
+            return None
+        open_axes = ~cs.pbc
+        span = 1.0
+        if open_axes.any():
+            if cs.diag:
+                frac = positions[:, open_axes] / np.diag(cs.cell_k)[open_axes]
+            else:  # (a sum of products, not a BLAS product: no BLAS threads)
+                h = cs.hinv[:, open_axes]
+                frac = (positions[:, 0:1] * h[0] + positions[:, 1:2] * h[1]
+                        + positions[:, 2:3] * h[2])
+            span = float(np.prod(frac.max(axis=0) - frac.min(axis=0)))
+        memo = getattr(self, "_small_split_memo", None)
+        key = (n, skin, span, cs.key)
+        if memo is not None and memo[0] == key and np.array_equal(memo[1], rad):
+            return memo[2]
+        r_small = _level_split(rad, rmax, skin, n, span * cs.det)
+        self._small_split_memo = (key, rad.copy(), r_small)
+        return r_small
+
+    def _records(self, size):
+        """Record buffers of pass 1 for ``size`` records at least."""
+        self._words = np.empty(size, np.uint64)
+        self._rec_p = np.empty(size, np.int32)
+        self._rec_q = np.empty(size, np.int32)
+        self._rec_s = np.empty(size, np.int32)
 
     def _pass1(self, geometry, tests, levels, verlet):
         """Pass 1 of the column sweep: per chunk its pairs, candidates and records,
@@ -666,42 +884,29 @@ class _Search:
         times["fill"] = time.perf_counter() - t1
         return int(tested.sum())
 
-    def _choose_path(self, n, minimum):
-        """(path, reason) of this build: forced, or chosen from what earlier builds
-        measured (candidates tested per pair, seconds per particle of each path)."""
+    def _choose_path(self, n, minimum, cpp):
+        """(path, reason) of this build: forced, or chosen from the frame alone.
+
+        ``cpp`` is ``_predict_cpp``'s (candidates per pair, per particle) of the
+        column plan.  The paper's sweep tests a few candidates per pair whatever
+        the size spread but pays several times more per particle (its sort and
+        ghost cubes), so it is taken only where the column sweep is predicted
+        to test very many candidates per pair and per particle on a large frame
+        (the measurements are in docs/engine.md).  No timing enters: the same
+        frame gets the same path in every process, with any thread count."""
         if self.path != "auto":
             return self.path, f"path={self.path!r} given"
-        a = self._auto
-        key = (n, minimum, self._margin)
-        a["since"] += 1
-        if a["key"] != key or a["since"] > _RETRIAL:
-            a.update(columns=None, sweep=None, cpp=None, since=0, key=key)
         if not minimum:
             return "columns", "every periodic image asked for: the column sweep wraps its stencil"
-        if a["columns"] is None:
-            return "columns", "first build: the column sweep"
-        cpp = a["cpp"]
-        if a["sweep"] is None:
-            if cpp > _SWEEP_TRIAL_CPP:
-                return "sweep", (f"trying the paper's sweep: the column sweep tested "
-                                 f"{cpp:.1f} candidates per pair")
-            return "columns", (f"the column sweep tests {cpp:.1f} candidates per pair (the "
-                               f"paper's sweep is tried above {_SWEEP_TRIAL_CPP:g})")
-        col, sw = a["columns"] * 1e9, a["sweep"] * 1e9
-        faster = "sweep" if a["sweep"] < a["columns"] else "columns"
-        return faster, (f"measured per particle: the column sweep {col:.0f} ns, the paper's "
-                        f"sweep {sw:.0f} ns")
-
-    def _measured(self, tested, pairs, seconds, n):
-        """Record a build's seconds per particle: the column sweep's latest until the
-        paper's sweep is tried, then both are kept until the next trial, so that
-        timing noise never flips the choice back and forth."""
-        a = self._auto
-        path = self._path_now
-        if a[path] is None or (path == "columns" and a["sweep"] is None):
-            a[path] = seconds / n
-            if path == "columns" and tested is not None:
-                a["cpp"] = tested / max(pairs, 1)
+        per_pair, per_particle = cpp
+        figures = (f"the column plan predicts {per_pair:.1f} candidates per pair "
+                   f"({per_particle:.1f} per particle) on {n} particles")
+        limits = f"{_SWEEP_CPP:g} per pair and {_SWEEP_PER_PARTICLE:g} per particle"
+        if n < _SWEEP_MIN_N:
+            return "columns", f"{figures}: below {_SWEEP_MIN_N} particles, the column sweep"
+        if per_pair > _SWEEP_CPP and per_particle > _SWEEP_PER_PARTICLE:
+            return "sweep", f"{figures}: above {limits}, the paper's sweep"
+        return "columns", f"{figures}: not above {limits}, the column sweep"
 
     def _sweep_build(self, cell, pbc, minimum, reach, use_label, n, times):
         """The Verlet list from the paper's Sweep and Prune over bounding cubes."""
@@ -946,11 +1151,12 @@ class NeighborSearch(_Search):
         column sweep (a sweep along one axis inside columns over the other
         two); ``"sweep"``: the paper's parallel bi-dimensional Sweep and
         Prune over the particles' bounding cubes, with ghost cubes for
-        periodic images.  ``"auto"`` (default) takes the column sweep, tries
-        the paper's sweep when the column sweep tests many candidates per pair
-        (sparse, widely polydisperse frames), and keeps the faster of the two
-        as measured; ``stats["path"]`` and ``stats["path_reason"]`` say which
-        and why.  Results are the same on every path.
+        periodic images.  ``"auto"`` (default) decides from the frame alone:
+        the column sweep, unless the column plan predicts very many
+        candidates per pair and per particle on a large frame; no timing
+        enters, so the same input gets the same path in every process and
+        with any thread count.  ``stats["path"]`` and ``stats["path_reason"]``
+        say which and why.  Results are the same on every path.
 
     identity : bool, optional
         Follow pairs across calls: after each :meth:`update`,

@@ -173,8 +173,8 @@ class _Progress:
     def peer_done(self, res):
         self.last = time.perf_counter()
         if res.status == "ok":
-            _out(f"  {res.peer:<20} {res.seconds:.4g} s median of {len(res.times)}, "
-                 f"{res.pairs} pairs")
+            _out(f"  {res.peer:<20} {res.seconds:.4g} s median of {len(res.times)} "
+                 f"(min {res.min_seconds:.4g} s), {res.pairs} pairs")
         else:
             _out(f"  {res.peer:<20} {res.status}: {res.reason}")
 
@@ -192,12 +192,19 @@ def list_peers(peers):
         _out(f"  {p.name:<20} {state}; {p.description}")
 
 
+def _small_runs():
+    from .harness import SMALL_RUNS
+
+    return SMALL_RUNS
+
+
 def execute(specs, peers, *, build, repeats, n_threads, max_seconds, settings,
-            json_path=None, plot_path=None):
+            json_path=None, plot_path=None, small_runs=0):
     """Run ``specs`` through ``peers``; print tables; write JSON/PNG; return results.
 
     ``build(name, what)`` makes a workload for one spec.  Peers that are not
-    installed are skipped with one line each.
+    installed are skipped with one line each.  ``small_runs``: steady runs of
+    small single-frame workloads (``harness.run_peer``).
     """
     from . import harness, report
 
@@ -250,7 +257,7 @@ def execute(specs, peers, *, build, repeats, n_threads, max_seconds, settings,
         lines = _Progress()
         wres = harness.run_workload(workload, run_peers, repeats=repeats, n_threads=n_threads,
                                     max_seconds=max_seconds, progress=lines.peer_done,
-                                    tick=lines.tick)
+                                    tick=lines.tick, small_runs=small_runs)
         for r in wres.results:
             if r.status == "ok" and r.warmup_seconds:
                 history[family, r.peer] = (workload.n, r.warmup_seconds)
@@ -352,5 +359,5 @@ def run(args) -> int:
 
     results = execute(specs, peers, build=build, repeats=repeats, n_threads=n_threads,
                       max_seconds=args.max_seconds, settings=settings, json_path=args.json,
-                      plot_path=args.plot)
+                      plot_path=args.plot, small_runs=_small_runs())
     return 1 if any(w.disagreements for w in results) else 0

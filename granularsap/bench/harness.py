@@ -18,9 +18,15 @@ Protocol for one workload and one peer:
    measured).  A peer that times itself (:meth:`Peer.last_seconds`, LAMMPS's
    own timers) reports that figure instead of the wall seconds, and no CPU
    seconds;
-5. the median over the steady runs is reported (``seconds``), with the
-   fresh call beside it (``fresh_seconds``) and, when the peer's stats have
-   ``candidates_tested`` and ``pairs``, the candidates tested per pair found.
+5. the median over the steady runs is reported (``seconds``) and their
+   minimum (``min_seconds``), with the fresh call beside it
+   (``fresh_seconds``) and, when the peer's stats have ``candidates_tested``
+   and ``pairs``, the candidates tested per pair found.  With ``small_runs``
+   (the CLI gives :data:`SMALL_RUNS`) a single-frame workload whose runs take
+   less than :data:`SMALL_SECONDS` is run again until it has that many steady
+   runs or :data:`SMALL_BUDGET` more seconds have passed: the minimum of a
+   small frame is then a per-step figure over many steps, as a time-stepping
+   loop sees it.
 
 Agreement: every peer's pairs are reduced to a signature (the pair count of
 every frame checked, plus a hash of the sorted pair set where that is cheap).
@@ -44,6 +50,12 @@ from .peers import GRANULARSAP
 HASH_LIMIT = 100_000_000
 
 PHASES = ("sort", "candidates", "pairing")
+#: runs faster than this (median of the planned repeats) are small frames ...
+SMALL_SECONDS = 0.02
+#: ... repeated up to this many steady runs ...
+SMALL_RUNS = 200
+#: ... within this many more seconds
+SMALL_BUDGET = 2.0
 
 
 @dataclass
@@ -61,6 +73,7 @@ class PeerResult:
     wall_times: list | None = None  # harness wall seconds, for peers that time themselves
     self_timed: bool = False  # times are the peer's own figures (LAMMPS's timers)
     seconds: float | None = None  # steady state: median seconds per run (per frame)
+    min_seconds: float | None = None  # steady state: the fastest run
     cpu_seconds: float | None = None
     fresh_seconds: float | None = None  # stateful peers: first call on a new engine
     fresh_peak_rss_mb: float | None = None
@@ -292,11 +305,13 @@ def _timed_run(peer, frame):
     return pairs, t1 - t0, t1 - t0, c1 - c0, mem.delta
 
 
-def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0, tick=None):
+def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0, tick=None,
+             small_runs=0):
     """Run one peer on one workload; return a :class:`PeerResult`.
 
     ``tick(done, total, seconds_so_far)`` is called after every timed run
-    (progress lines of long runs).
+    (progress lines of long runs).  ``small_runs``: steady runs of a small
+    single-frame workload (see the module docstring); 0 keeps ``repeats``.
     """
     res = PeerResult(peer=peer.name, status="ok", description=peer.description,
                      version=peer.version(), threads=peer.threads_used(n_threads))
@@ -339,13 +354,18 @@ def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0, tick=
                 notes.append(f"the fresh call found {fresh[0]} pairs, the warm-up {count}")
         peaks, phases, cands, walls, spent = [], [], [], [], 0.0
         last = None
-        for step, frame in enumerate(plan):
+        extra_until = None
+        for step, frame in enumerate(_plan_runs(plan, res.times, small_runs, n_frames)):
+            if step == len(plan):  # the small-frame extension starts
+                extra_until = time.perf_counter() + SMALL_BUDGET
+            elif extra_until is not None and time.perf_counter() > extra_until:
+                break
             pairs, seconds, wall, cpu, peak = _timed_run(peer, frame)
             res.times.append(seconds)
             res.cpu_times.append(cpu)
             walls.append(wall)
             spent += wall
-            if tick is not None:
+            if tick is not None and step < len(plan):
                 tick(step + 1, len(plan), spent)
             if peak is not None:
                 peaks.append(peak)
@@ -377,6 +397,7 @@ def run_peer(peer, workload, *, repeats=5, n_threads=1, max_seconds=120.0, tick=
                 _, tail = canonical(last, workload.n)
                 res.digest = f"{res.digest}/{tail}"
         res.seconds = statistics.median(res.times)
+        res.min_seconds = min(res.times)
         cpu = [c for c in res.cpu_times if c is not None]
         res.cpu_seconds = statistics.median(cpu) if cpu else None
         res.peak_rss_mb = max(peaks) / 2**20 if peaks else None
@@ -454,8 +475,19 @@ def judge(wres):
     return wres
 
 
+def _plan_runs(plan, times, small_runs, n_frames):
+    """The frames of the steady runs: ``plan``, then (a small single-frame
+    workload, ``small_runs`` given) frame 0 again until ``small_runs`` runs."""
+    yield from plan
+    if (small_runs <= len(plan) or n_frames != 1 or not times
+            or statistics.median(times) >= SMALL_SECONDS):
+        return
+    for _ in range(small_runs - len(plan)):
+        yield 0
+
+
 def run_workload(workload, peers, *, repeats=5, n_threads=1, max_seconds=120.0,
-                 progress=None, tick=None):
+                 progress=None, tick=None, small_runs=0):
     """Run every peer on ``workload``; return a judged :class:`WorkloadResult`.
 
     ``progress(peer_result)`` is called after each peer and ``tick(peer, done,
@@ -465,7 +497,7 @@ def run_workload(workload, peers, *, repeats=5, n_threads=1, max_seconds=120.0,
     for peer in peers:
         peer_tick = None if tick is None else (lambda d, t, s, p=peer: tick(p, d, t, s))
         res = run_peer(peer, workload, repeats=repeats, n_threads=n_threads,
-                       max_seconds=max_seconds, tick=peer_tick)
+                       max_seconds=max_seconds, tick=peer_tick, small_runs=small_runs)
         results.append(res)
         if progress is not None:
             progress(res)

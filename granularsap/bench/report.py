@@ -80,7 +80,8 @@ def _fmt(x, spec):
 LEGEND = ("fresh s: first call on a new engine, after the warm-up (stateful peers; '=' for "
           "stateless peers, whose every call is fresh); steady s: median of the later "
           "{runs}, state and buffers kept; * timed by the peer itself (LAMMPS's timers); "
-          "cand/pair: candidates tested per pair found")
+          "cand/pair: candidates tested per pair found; min s: the fastest of the same runs "
+          "(a small frame is run up to 200 times)")
 
 
 def format_table(wres):
@@ -92,7 +93,7 @@ def format_table(wres):
     if wres.n_frames > 1:
         head += f"  (seconds per frame, steady: median over frames 1..{wres.n_frames - 1})"
     cols = f"{'peer':<20} {'thr':>3} {'fresh s':>9} {'steady s':>10} {'cpu s':>9} " \
-           f"{'peer/gsap':>9} {'cand/pair':>9} {'peak MB':>8} {'pairs':>12}  agrees"
+           f"{'peer/gsap':>9} {'cand/pair':>9} {'min s':>10} {'peak MB':>8} {'pairs':>12}  agrees"
     lines = [head, cols, "-" * len(cols)]
     for r in wres.results:
         if r.status != "ok":
@@ -102,10 +103,11 @@ def format_table(wres):
         agrees = {True: "yes", False: "NO", None: "?"}[r.agrees]
         fresh = _fmt(r.fresh_seconds, ".4g") if r.fresh_seconds is not None else "="
         steady = _fmt(r.seconds, ".4g") + ("*" if r.self_timed else " ")
+        least = _fmt(r.min_seconds, ".4g") + ("*" if r.self_timed else " ")
         line = (f"{r.peer:<20} {r.threads:>3} {fresh:>9} {steady:>10} "
                 f"{_fmt(r.cpu_seconds, '.4g'):>9} {ratio:>9} "
-                f"{_fmt(r.candidates_per_pair, '.2f'):>9} {_fmt(r.peak_rss_mb, '.1f'):>8} "
-                f"{r.pairs:>12}  {agrees}")
+                f"{_fmt(r.candidates_per_pair, '.2f'):>9} {least:>10} "
+                f"{_fmt(r.peak_rss_mb, '.1f'):>8} {r.pairs:>12}  {agrees}")
         extras = [x for x in (r.note, f"{r.rebuilds} rebuilds" if r.rebuilds else None) if x]
         if extras:
             line += "  (" + "; ".join(extras) + ")"

@@ -904,6 +904,196 @@ def csr_from_pairs(n, pairs, dist, want_d, offsets, col, cd):
         fill[i] = o + 1
 
 
+# ------------------------------------------------------------ small frames
+#
+# A frame of a few thousand particles without a Verlet margin is done in two
+# serial calls, with no array work in Python between them: ``small_count``
+# wraps, plans the columns, sorts, gathers and runs pass 1 of the sweep over
+# every column (``_sweep_chunk``, one chunk); ``small_fill`` runs pass 2
+# (``_records_fill``) into the outputs.  They are the general path's own
+# kernels on one chunk, so the records, the pairs, their order and their
+# distances are those of the general path bit for bit.
+
+
+@jit
+def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, strict,
+                uniform, x2, guard_rel, r_small, fresh, prev, t, k, w, col, perm, start,
+                cursor, tz, xs, ys, zs, rs, ls, big, stencil, words, rec_p, rec_q, rec_s):
+    """Wrap, plan, sort, gather and sweep one frame (serial, minimum image, no
+    Verlet list): the steps of ``search._build`` and ``direct_count`` on one
+    chunk.  ``r_small > 0`` asks for two column levels split at that radius.
+    Returns (first bad input row, -1, or -2 for a stencil larger than
+    ``stencil``; pairs, candidates tested, records needed, nb0, nb1); the
+    records are kept while they fit ``words``."""
+    n = x.shape[0]
+    bad = -1
+    extent = 0.0
+    rmax = 0.0
+    for i in range(n):
+        if not _wrap_one(x, i, hinv, cell, diag, pbc, t, k, w, i):
+            if bad < 0:
+                bad = i
+        for c in range(3):
+            a = abs(w[i, c])
+            extent = a if a > extent else extent
+        rmax = rad[i] if rad[i] > rmax else rmax
+    if bad >= 0 or n == 0:
+        return bad, 0, 0, 0, 1, 1
+    extent = extent + 2.0 * rmax + skin
+    guard = guard_rel * extent + 2.2250738585072014e-308
+    reach = skin + guard
+    lo0 = 0.0
+    lo1 = 0.0
+    span0 = 1.0
+    span1 = 1.0
+    for c in range(2):
+        if not pbc[c]:
+            mn = t[0, c]
+            mx = t[0, c]
+            for i in range(1, n):
+                v = t[i, c]
+                mn = v if v < mn else mn
+                mx = v if v > mx else mx
+            if c == 0:
+                lo0 = mn
+                span0 = mx - mn
+            else:
+                lo1 = mn
+                span1 = mx - mn
+    levels = r_small > 0.0
+    bin_range = 2.0 * (r_small if levels else rmax) + reach + guard
+    big_range = 2.0 * rmax + reach + guard
+    # the column plan of search._build (columns one range wide)
+    nb0 = 1
+    nb1 = 1
+    d0 = bin_range / widths[0]
+    d1 = bin_range / widths[1]
+    if span0 > 0:
+        nb0 = int(max(1.0, math.floor(min(span0 / d0 if d0 > 0 else math.inf, 65536.0))))
+    if span1 > 0:
+        nb1 = int(max(1.0, math.floor(min(span1 / d1 if d1 > 0 else math.inf, 65536.0))))
+    while nb0 * nb1 > max(1, n) and max(nb0, nb1) > 1:
+        if nb0 >= nb1:
+            nb0 = max(1, nb0 // 2)
+        else:
+            nb1 = max(1, nb1 // 2)
+    inv0 = nb0 / span0 if span0 > 0 else 0.0
+    inv1 = nb1 / span1 if span1 > 0 else 0.0
+    f0 = span0 / nb0
+    f1 = span1 / nb1
+    if not math.isfinite(inv0):
+        nb0 = 1
+        inv0 = 0.0
+        f0 = 0.0
+    if not math.isfinite(inv1):
+        nb1 = 1
+        inv1 = 0.0
+        f1 = 0.0
+    L0 = 1 if (f0 >= d0 or f0 == 0) else int(math.ceil(d0 / f0))
+    L1 = 1 if (f1 >= d1 or f1 == 0) else int(math.ceil(d1 / f1))
+    db0 = big_range / widths[0]
+    db1 = big_range / widths[1]
+    B0 = 1 if (f0 >= db0 or f0 == 0) else int(math.ceil(db0 / f0))
+    B1 = 1 if (f1 >= db1 or f1 == 0) else int(math.ceil(db1 / f1))
+    if not pbc[0]:
+        L0 = min(L0, nb0 - 1)
+        B0 = min(B0, nb0 - 1)
+    if not pbc[1]:
+        L1 = min(L1, nb1 - 1)
+        B1 = min(B1, nb1 - 1)
+    n_st = 0
+    for o0 in range(-L0, L0 + 1):
+        for o1 in range(-L1, L1 + 1):
+            if o0 > 0 or (o0 == 0 and o1 > 0):
+                if n_st < stencil.shape[0]:
+                    stencil[n_st, 0] = o0
+                    stencil[n_st, 1] = o1
+                n_st += 1
+    if n_st > stencil.shape[0]:
+        # columns a rounding narrower than the range can need two layers: the
+        # caller has room for those; anything wider goes to the general path
+        return -2, 0, 0, 0, nb0, nb1
+    stencil_big = np.empty(((2 * B0 + 1) * (2 * B1 + 1) if levels else 0, 2), np.int64)
+    if levels:
+        j = 0
+        for o0 in range(-B0, B0 + 1):
+            for o1 in range(-B1, B1 + 1):
+                stencil_big[j, 0] = o0
+                stencil_big[j, 1] = o1
+                j += 1
+    ncol = nb0 * nb1
+    # a stable counting sort of the previous order by column, then t2 in columns
+    for c in range(ncol + 1):
+        start[c] = 0
+    for i in range(n):
+        b0 = int(math.floor((t[i, 0] - lo0) * inv0))
+        b1 = int(math.floor((t[i, 1] - lo1) * inv1))
+        b0 = min(max(b0, 0), nb0 - 1)
+        b1 = min(max(b1, 0), nb1 - 1)
+        col[i] = b0 * nb1 + b1
+        start[col[i] + 1] += 1
+    for c in range(ncol):
+        start[c + 1] += start[c]
+        cursor[c] = start[c]
+    for r in range(n):
+        i = r if fresh else prev[r]
+        c = col[i]
+        perm[cursor[c]] = i
+        cursor[c] += 1
+    for c in range(ncol):
+        lo_c = start[c]
+        hi_c = start[c + 1]
+        budget = 8 * (hi_c - lo_c) + 64
+        moves = 0
+        for p in range(lo_c + 1, hi_c):
+            v = perm[p]
+            kv = t[v, 2]
+            q = p - 1
+            while q >= lo_c and t[perm[q], 2] > kv:
+                perm[q + 1] = perm[q]
+                q -= 1
+                moves += 1
+            perm[q + 1] = v
+            if moves > budget:
+                break
+        if moves > budget:
+            m = hi_c - lo_c
+            seg = perm[lo_c:hi_c].copy()
+            vals = np.empty(m, np.float64)
+            for p in range(m):
+                vals[p] = t[seg[p], 2]
+            order = np.argsort(vals, kind="mergesort")
+            for p in range(m):
+                perm[lo_c + p] = seg[order[p]]
+    for p in range(n):
+        i = perm[p]
+        tz[p] = t[i, 2]
+        xs[p] = w[i, 0]
+        ys[p] = w[i, 1]
+        zs[p] = w[i, 2]
+        rs[p] = rad[i]
+        if use_label:
+            ls[p] = label[i]
+        if levels:
+            big[p] = np.uint8(rs[p] > r_small)
+    chunk_start = start[:ncol + 1]
+    cnt, tested, need = _sweep_chunk(
+        0, ncol, chunk_start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell, diag,
+        stencil[:n_st], rmax, reach, 1.0 / widths[2], False, skin, strict, uniform, x2, words,
+        rec_p, rec_q, rec_s, 0, words.shape[0], levels, big, r_small, stencil_big, False)
+    return -1, cnt, tested, need, nb0, nb1
+
+
+@jit
+def small_fill(need, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls, use_label, cell, diag,
+               skin, strict, uniform, x2, perm, kw, want_d, want_vec, want_shift, out_p, out_d,
+               out_v, out_s):
+    """Pass 2 of ``small_count``'s frame: the pairs of its records, in order."""
+    return _records_fill(0, need, 0, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
+                         use_label, cell, diag, False, skin, strict, uniform, x2, perm, kw,
+                         want_d, want_vec, want_shift, out_p, out_d, out_v, out_s)
+
+
 # ------------------------------------------------------------ serial twins
 
 

@@ -1,0 +1,223 @@
+"""Small frames: searches of up to ``_SMALL_MAX`` particles without a Verlet margin run
+two serial kernels (``grid.small_count``, ``grid.small_fill``) and keep the resolved
+cell between calls.  Their answer must be the general path's bit for bit (rows in the
+same order) and the brute-force oracle's, for every size down to 0 particles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from granularsap import Cell, ContactSearch, NeighborSearch
+from granularsap.periodic import as_cell
+
+from .oracles import brute_image_pairs
+
+CELLS = {
+    "open": (None, None),
+    "ortho": ([[8.0, 0, 0], [0, 8.0, 0], [0, 0, 8.0]], None),
+    "triclinic": ([[8.0, 0, 0], [2.0, 8.0, 0], [-1.0, 1.5, 8.0]], None),
+    "mixed": ([[8.0, 0, 0], [1.0, 8.0, 0], [0, 0, 8.0]], (True, False, True)),
+    "tiny": ([[2.0, 0, 0], [0, 2.0, 0], [0, 0, 2.0]], None),
+}
+
+
+def _oracle(pos, box, pbc, radii, skin):
+    cell = None if box is None else as_cell(box, pbc=(True,) * 3 if pbc is None else pbc)
+    pb = (True, True, True) if pbc is None else pbc
+    return brute_image_pairs(pos, skin, cell, pbc=pb, radii=radii)
+
+
+def _pair(pos, radii, box, pbc, *, skin=0.0, labels=None, quantities="PdDS", **kw):
+    """(small path, general path) results of one frame, as tuples of copies."""
+    out = []
+    for small_max in (None, 0):
+        s = ContactSearch(skin=skin, quantities=quantities, **kw)
+        if small_max is not None:
+            s._small_max = small_max
+        res = s.update(pos, radii, box, pbc=pbc, clump_ids=labels, copy=True)
+        out.append((res if isinstance(res, tuple) else (res,), dict(s.stats)))
+    return out
+
+
+def _same(a, b):
+    assert len(a) == len(b)
+    for x, y in zip(a, b, strict=True):
+        assert x.dtype == y.dtype and x.shape == y.shape
+        assert np.array_equal(x, y)  # rows in the same order, floats bit for bit
+
+
+coords = st.lists(st.tuples(*[st.integers(-16, 48)] * 3), min_size=0, max_size=24)
+
+
+@settings(max_examples=40, deadline=None)
+@given(pts=coords, rad=st.lists(st.integers(0, 4), min_size=24, max_size=24),
+       cell=st.sampled_from(sorted(CELLS)), skin=st.sampled_from([0.0, 0.25]),
+       n_threads=st.sampled_from([1, 2]), path=st.sampled_from(["auto", "columns"]))
+def test_small_frames_equal_the_general_path_and_the_oracle(pts, rad, cell, skin, n_threads,
+                                                            path):
+    # quarter-integer coordinates and dyadic radii: touching spheres are exact ties;
+    # 0, 1 and 2 particles included; the tiny cell is barely wider than the range
+    pos = np.asarray(pts, dtype=float).reshape(-1, 3) / 4.0
+    radii = np.asarray(rad[: len(pos)], dtype=float) / (16.0 if cell == "tiny" else 8.0)
+    box, pbc = CELLS[cell]
+    (small, s_stats), (general, g_stats) = _pair(pos, radii, box, pbc, skin=skin,
+                                                 n_threads=n_threads, path=path)
+    assert s_stats["path"] == g_stats["path"] == "columns"
+    _same(small, general)
+    want_p, want_d = _oracle(pos, box, pbc, radii, skin)
+    p, d = small[0], small[1]
+    order = np.lexsort((p[:, 1], p[:, 0]))
+    assert np.array_equal(p[order], want_p)
+    np.testing.assert_allclose(d[order], want_d, rtol=1e-12)
+
+
+@pytest.mark.parametrize("cell", sorted(CELLS))
+@pytest.mark.parametrize("n", [0, 1, 2, 3])
+def test_fewest_particles(cell, n):
+    box, pbc = CELLS[cell]
+    pos = np.array([[0.5, 0.5, 0.5], [1.25, 0.5, 0.5], [7.75, 0.5, 0.5]])[:n]
+    radii = np.full(n, 0.375)
+    (small, _), (general, _) = _pair(pos, radii, box, pbc)
+    _same(small, general)
+    want_p, _ = _oracle(pos, box, pbc, radii, 0.0)
+    assert np.array_equal(np.sort(small[0], axis=0), np.sort(want_p, axis=0))
+    assert small[0].dtype == np.int64 and small[0].shape == (len(want_p), 2)
+
+
+def _granular(n, seed, spread=3.0):
+    rng = np.random.default_rng(seed)
+    radii = np.clip(rng.lognormal(0.0, 0.6, n), 0.3, spread)
+    length = (np.sum(4.0 / 3.0 * np.pi * radii ** 3) / 0.3) ** (1.0 / 3.0)
+    return rng.random((n, 3)) * length, radii, length
+
+
+@pytest.mark.parametrize("kind", ["periodic", "open", "triclinic", "labels", "strict"])
+def test_polydisperse_frames_equal_the_general_path(kind):
+    pos, radii, length = _granular(1500, 3)
+    box = [length] * 3 + [90.0] * 3
+    kw = {}
+    labels = None
+    if kind == "open":
+        box = None
+    elif kind == "triclinic":
+        box = [[length, 0, 0], [0.2 * length, length, 0], [0.1 * length, -0.3 * length, length]]
+    elif kind == "labels":
+        labels = np.arange(len(pos)) // 3
+    elif kind == "strict":
+        kw["include_cutoff"] = False
+    (small, s_stats), (general, _) = _pair(pos, radii, box, None, labels=labels, **kw)
+    assert s_stats["pairs"] > 100
+    _same(small, general)
+
+
+def test_two_levels_on_a_small_frame():
+    # 2 % large spheres: the cost model splits the radii on the small path too
+    rng = np.random.default_rng(8)
+    n = 3000
+    radii = np.where(rng.random(n) < 0.02, 2.0, 0.2)
+    pos = rng.uniform(0.0, 20.0, (n, 3))
+    (small, s_stats), (general, g_stats) = _pair(pos, radii, [20.0] * 3 + [90.0] * 3, None)
+    assert s_stats["levels"] == g_stats["levels"] == 2
+    _same(small, general)
+
+
+def test_dense_frame_grows_its_records():
+    # every pair in range: pass 1 needs more records than first sized, runs again
+    rng = np.random.default_rng(2)
+    pos = rng.random((300, 3))
+    search = NeighborSearch(2.0, quantities="Pd")
+    pairs, d = search.update(pos)
+    assert len(pairs) == 300 * 299 // 2
+    general = NeighborSearch(2.0, quantities="Pd")
+    general._small_max = 0
+    _same((pairs, d), general.update(pos))
+
+
+def test_neighbor_search_uniform_ranges():
+    rng = np.random.default_rng(4)
+    pos = rng.random((2000, 3)) * 12.0
+    box = [12.0] * 3 + [90.0] * 3
+    a = NeighborSearch(2.5, quantities="PdDS")
+    b = NeighborSearch(2.5, quantities="PdDS")
+    b._small_max = 0
+    for step in range(3):
+        x = pos + 0.05 * step
+        _same(a.update(x, box, copy=True), b.update(x, box, copy=True))
+
+
+def test_kept_cell_follows_a_box_changed_in_place():
+    # the resolved cell is kept while the same values come back; an array edited
+    # in place between calls is a new cell
+    rng = np.random.default_rng(5)
+    pos = rng.random((200, 3)) * 10.0
+    box = np.array([10.0, 10.0, 10.0, 90.0, 90.0, 90.0])
+    search = NeighborSearch(1.5, quantities="Pd")
+    first = search.update(pos, box, copy=True)
+    box[0] = 12.0
+    second = search.update(pos, box, copy=True)
+    fresh = NeighborSearch(1.5, quantities="Pd").update(pos, box)
+    _same(second, fresh)
+    assert len(first[0]) != len(second[0])
+    cell = Cell.from_dimensions([12.0, 10.0, 10.0, 90.0, 90.0, 90.0])
+    _same(search.update(pos, cell, copy=True), fresh)
+    _same(search.update(pos, cell, pbc=(True, False, True), copy=True),
+          NeighborSearch(1.5, quantities="Pd").update(pos, cell, pbc=(True, False, True)))
+
+
+def test_particle_count_changes_between_small_frames():
+    pos, radii, length = _granular(1200, 6)
+    box = [length] * 3 + [90.0] * 3
+    search = ContactSearch(quantities="Pd")
+    general = ContactSearch(quantities="Pd")
+    general._small_max = 0
+    for n in (1200, 700, 1200, 5, 0, 1200):
+        _same(search.update(pos[:n], radii[:n], box, copy=True),
+              general.update(pos[:n], radii[:n], box, copy=True))
+
+
+def test_far_outside_the_cell_is_named_on_the_small_path():
+    pos = np.array([[0.0, 0, 0], [1.0, 0, 0], [2.0 ** 60, 0, 0]])
+    with pytest.raises(ValueError, match=r"positions row 2 .* outside the cell"):
+        NeighborSearch(1.5).update(pos, [5.0] * 3 + [90.0] * 3)
+
+
+def test_bench_repeats_a_small_frame_and_reports_its_minimum():
+    from granularsap.bench import harness, workloads
+    from granularsap.bench.peers import make_peers
+
+    wl = workloads.make("granular-polydisperse", 200)
+    (peer,) = make_peers(["granularsap-steady"])
+    many = harness.run_peer(peer, wl, repeats=3, small_runs=20)
+    assert len(many.times) == 20 and many.min_seconds == min(many.times)
+    assert many.min_seconds <= many.seconds
+    (peer,) = make_peers(["granularsap-steady"])
+    few = harness.run_peer(peer, wl, repeats=3)
+    assert len(few.times) == 3
+
+
+def test_two_threads_above_one_chunk_keep_the_parallel_path():
+    # n_threads=2 asked for with more particles than one chunk of parallel work:
+    # the general path on two threads, the same rows as the serial small path
+    pos, radii, length = _granular(5000, 9)
+    box = [length] * 3 + [90.0] * 3
+    one = ContactSearch(quantities="PdD", n_threads=1)
+    two = ContactSearch(quantities="PdD", n_threads=2)
+    a = one.update(pos, radii, box, copy=True)
+    b = two.update(pos, radii, box, copy=True)
+    assert one.stats["threads"] == 1 and two.stats["threads"] == 2
+    _same(a, b)
+
+
+def test_a_plan_wider_than_the_small_stencil_falls_back():
+    # the small path keeps room for the stencils of one or two column layers;
+    # a plan needing more (here: no room at all) runs the general path instead
+    pos, radii, length = _granular(800, 10)
+    box = [length] * 3 + [90.0] * 3
+    s = ContactSearch(quantities="PdDS")
+    want = s.update(pos, radii, box, copy=True)
+    s._small_scratch = s._small_scratch[:3] + (np.empty((0, 2), np.int64),)
+    _same(s.update(pos, radii, box, copy=True), want)
+    assert s.stats["seconds"]["sort"] > 0.0  # the general path's own sort ran
