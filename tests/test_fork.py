@@ -43,7 +43,9 @@ def _run(code, env_extra=None, timeout=TIMEOUT):
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-_POINTS = "np.random.default_rng(0).random((3000, 3)) * 10"
+#: enough points that a frame with n_threads=2 runs the parallel kernels (small frames
+#: run serial kernels whatever the thread count)
+_POINTS = "np.random.default_rng(0).random((8000, 3)) * 10"
 
 _FORK_AFTER_PARALLEL = f"""
     import json, multiprocessing
@@ -77,13 +79,16 @@ def _min_image_pairs(pos, cutoff, length):
 
 
 def _expected_count():
-    pos = np.random.default_rng(0).random((3000, 3)) * 10
+    pos = np.random.default_rng(0).random((8000, 3)) * 10
     return len(granularsap.neighbor_pairs(pos, 1.0, box=BOX)[0])
 
 
 class TestForkAfterParallelCall:
     def test_in_this_process(self):
         # the test process has run parallel kernels (below, and in other tests)
+        # a frame large enough for the parallel kernels (small frames run serial ones)
+        granularsap.neighbor_pairs(np.random.default_rng(2).random((8000, 3)) * 10, 1.0,
+                                   box=BOX, n_threads=2)
         pos = np.random.default_rng(1).random((2000, 3)) * 10
         want = sort_pairs(granularsap.neighbor_pairs(pos, 1.2, box=BOX, n_threads=2)[0])
         if numba.threading_layer() == "omp":
