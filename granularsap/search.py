@@ -240,7 +240,10 @@ class _CellState:
         self.narrowest = [int(c) for c in axes[np.argsort(self.widths[axes], kind="stable")][:1]]
         self.magnitude = float(np.abs(cell).max()) if cell is not None else 0.0
         self.min_periodic_width = float(self.widths[pbc].min()) if pbc.any() else math.inf
-        self.det = abs(float(np.linalg.det(cell_k)))
+        with np.errstate(over="ignore", under="ignore"):
+            # a cell beyond 2**340 wide has no finite volume (searches then run on
+            # scaled coordinates, whose volume is taken again); it is only a cost figure
+            self.det = abs(float(np.linalg.det(cell_k)))
 
 
 class _Search:
