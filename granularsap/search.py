@@ -68,7 +68,6 @@ _PARALLEL_MIN = 20000
 #: frames of up to this many particles (no Verlet margin, minimum image) are
 #: built by two serial kernels (``grid.small_count``, ``grid.small_fill``)
 _SMALL_MAX = 20000
-_NO_ENTRIES = np.zeros(0, np.int64)
 
 
 def _check_quantities(quantities):
