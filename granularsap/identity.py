@@ -347,6 +347,10 @@ class PairIdentity(_Rows):
         self._hub_start = self._hub_groups = None
         self._clumps = None
         self.clump_pairs = None
+        self._entries = None  # (list, entries) of the previous call, when increasing
+        #: how the last call matched: "entries" (one kept list), "pairs", "nothing"
+        self.matched_by = None
+        self._checked = None
 
     # ---------------------------------------------------------------- ids
     def _map(self, n, ids, prev):
@@ -434,7 +438,7 @@ class PairIdentity(_Rows):
         return gpos[:g + 1], ghub[:g], hub_start, hub_groups
 
     def update(self, pairs, n, *, ids=None, shifts=None, positions=None, cell=None,
-               pbc=None, labels=None, radii=None, skin=0.0, borrow=False):
+               pbc=None, labels=None, radii=None, skin=0.0, borrow=False, entries=None):
         """Match this call's pairs to the previous call's.
 
         Parameters
@@ -467,8 +471,13 @@ class PairIdentity(_Rows):
         skin : float, optional
             Added to ``radii[i] + radii[j]`` (with ``radii``).
         borrow : bool, optional
-            Keep ``pairs`` and ``shifts`` without copying them (the caller keeps
-            them unchanged until the next call).
+            Keep ``pairs`` and ``shifts`` (and ``entries``) without copying them
+            (the caller keeps them unchanged until the next call).
+        entries : (list, (k,) int64 ndarray), optional
+            A hint from a search: ``pairs`` re-tested a kept list, the first item
+            naming that list, the array the entry of each pair in it (increasing).
+            When the previous call gave the same list and the particles are the
+            same rows, pairs are matched by entry (a merge), else as usual.
 
         Returns
         -------
@@ -495,14 +504,25 @@ class PairIdentity(_Rows):
             k_prev = len(prev[0])
             kernels, chunks = self._threads(k)
             matched = self._matched(k_prev)
-            if self.shifts:
+            prev_entries = self._entries
+            same_list = (entries is not None and prev_entries is not None and m is None
+                         and int(n) == prev[2] and prev_entries[0] == entries[0]
+                         and len(prev_entries[1]) == k_prev and len(entries[1]) == k)
+            if self.shifts and not same_list:
                 jumps = self._jumps(positions, cell, pbc, m, prev)
 
             def fill_rows(out):
+                self.matched_by = "nothing"
                 if k_prev == 0 or k == 0:
                     out[:] = -1
                     self._cut = None  # the next call cuts this call's pairs itself
                     return
+                self.matched_by = "entries"
+                if same_list and self._by_entry(entries[1], prev_entries[1], out, matched,
+                                                kernels, chunks):
+                    self._cut = None
+                    return
+                self.matched_by = "pairs"
                 index = self._index(prev[0], prev[2], kernels, chunks)
                 far = self._far if self._far is not None else (_NO_X, _NO_R, _NO_R, 0.0)
                 bounds = _bounds(k, chunks)
@@ -518,12 +538,44 @@ class PairIdentity(_Rows):
 
             self._publish(k, k_prev, fill_rows, matched, chunks, kernels)
             self._track_clumps(pairs, labels)
+            self._entries = None
+            if entries is not None:
+                e = np.ascontiguousarray(entries[1], dtype=np.int64)
+                if len(e) == k and self._rising(e, kernels, chunks):
+                    self._entries = (entries[0], e if borrow else e.copy())
+            self._checked = None
         keep = None
         if self.shifts and positions is not None:
             keep = np.array(positions, dtype=np.float64)
         self._far = self._range_hint(positions, cell, pbc, radii, skin)
         self._prev = (pairs, shifts, int(n), None if ids is None else ids.copy(), keep)
         return self.previous_rows
+
+    def _by_entry(self, e, e_prev, out, matched, kernels, chunks):
+        """Match by entry in one kept list (``match_entries``); False (nothing
+        written that counts) when this call's entries do not increase."""
+        e = np.ascontiguousarray(e, dtype=np.int64)
+        bounds = _bounds(len(e), chunks)
+        rising = np.zeros(chunks, np.uint8)
+        kernels.match_entries(e_prev, e, bounds, out, matched, rising)
+        if rising.all() and self._joins_rise(e, bounds):
+            self._checked = e
+            return True
+        matched[:] = 0
+        return False
+
+    @staticmethod
+    def _joins_rise(e, bounds):
+        return all(e[b - 1] < e[b] for b in bounds[1:-1] if 0 < b < len(e))
+
+    def _rising(self, e, kernels, chunks):
+        """Whether ``e`` increases (already known when ``_by_entry`` merged it)."""
+        if self._checked is e:
+            return True
+        bounds = _bounds(len(e), chunks)
+        rising = np.zeros(chunks, np.uint8)
+        kernels.entries_rising(e, bounds, rising)
+        return bool(rising.all()) and self._joins_rise(e, bounds)
 
     def _range_hint(self, positions, cell, pbc, radii, skin):
         """What ``_apart`` needs of this call for the next (None: no hint): minimum

@@ -62,12 +62,12 @@ _CHUNK = 2048
 _MAX_CHUNKS = 1024
 _MAX_BINS = 1 << 16
 _NO_BIG = np.zeros(0, np.uint8)
+_NO_ENTRIES = np.zeros(0, np.int64)
 #: below this many particles one thread runs (a parallel region costs more)
 _PARALLEL_MIN = 20000
 #: frames of up to this many particles (no Verlet margin, minimum image) are
 #: built by two serial kernels (``grid.small_count``, ``grid.small_fill``)
 _SMALL_MAX = 20000
-_NO_ENTRIES = np.zeros(0, np.int64)
 
 
 def _check_quantities(quantities):
@@ -351,6 +351,7 @@ class _Search:
                        s=np.empty((0, 3), np.int64))
         self._out_cap = buf["cap"]
         self._out_p, self._out_d, self._out_v, self._out_s = buf["p"], buf["d"], buf["v"], buf["s"]
+        self._out_e = buf.get("e", _NO_ENTRIES)
 
     def _alloc_output(self, total):
         """Output buffers of this call (its set) for ``total`` pairs."""
@@ -362,7 +363,8 @@ class _Search:
         cap = max(1024, total + total // 8)
         buf.update(cap=cap, p=np.empty((cap, 2), np.int64), d=np.empty(cap if "d" in q else 0),
                    v=np.empty((cap if "D" in q else 0, 3)),
-                   s=np.empty((cap if "S" in q else 0, 3), np.int64))
+                   s=np.empty((cap if "S" in q else 0, 3), np.int64),
+                   e=np.empty(cap if self._tracker is not None else 0, np.int64))
         self._use_outputs(buf)
 
     @property
@@ -954,7 +956,7 @@ class _Search:
             self._kern.records_narrow(False, self._wstart, self._wneed, counts, counts,
                                       *records, self._ws, self._m, self._rs, skin, *tests,
                                       self._perm, self._ks, *wants, self._out_p,
-                                      self._out_d, self._out_v, self._out_s)
+                                      self._out_d, self._out_v, self._out_s, self._out_e)
         offsets = np.zeros(len(counts), np.int64)
         offsets[1:] = np.cumsum(counts)[:-1]
         total = int(counts.sum())
@@ -963,12 +965,12 @@ class _Search:
             self._kern.narrow_fill(rows, offsets, counts, self._vstart, self._vstop, self._vb,
                                    self._vs, self._ws, self._m, self._rs, skin, cell, strict,
                                    self._perm, self._ks, *wants, self._out_p, self._out_d,
-                                   self._out_v, self._out_s)
+                                   self._out_v, self._out_s, self._out_e)
         else:
             self._kern.records_narrow(True, self._wstart, self._wneed, offsets, counts,
                                       *records, self._ws, self._m, self._rs, skin, *tests,
                                       self._perm, self._ks, *wants, self._out_p,
-                                      self._out_d, self._out_v, self._out_s)
+                                      self._out_d, self._out_v, self._out_s, self._out_e)
         return total
 
     def _dedup(self, total):
@@ -1041,11 +1043,21 @@ class _Search:
         ids, positions, box, pbc, labels, rad, skin = self._id_call
         cell, pbc_arr = _resolve_cell(box, pbc)
         shifts = self._out_s[:total] if self._tracker.shifts else None
+        # rows re-tested from a kept list carry their entry in it: two calls on one
+        # list match by entry (unless two images of a pair may both be in the list)
+        entries = None
+        if not self._direct_done and len(self._out_e) >= total and len(positions):
+            twice = False
+            if cell is not None and self.periodic_images == "minimum" and pbc_arr.any():
+                reach = 2.0 * (2.0 * float(rad.max()) + skin + self.rebuild_margin)
+                twice = reach >= periodic.perpendicular_widths(cell)[pbc_arr].min() * (1 - 1e-6)
+            if not twice:
+                entries = (self._rebuilds, self._out_e[:total])
         # the pairs are every pair within rad_i + rad_j + skin: the tracker tells
         # new pairs from their previous distance
         self._tracker.update(self._out_p[:total], len(positions), ids=ids, shifts=shifts,
                              positions=positions, cell=cell, pbc=pbc_arr, labels=labels,
-                             radii=rad, skin=skin, borrow=True)
+                             radii=rad, skin=skin, borrow=True, entries=entries)
         self._identity_seconds = time.perf_counter() - t0
 
     def _run_tracked(self, positions, rad, skin, box, pbc, labels, copy, ids):
@@ -1058,6 +1070,7 @@ class _Search:
         self._outputs_done(copy)
         if self._identity_seconds is not None:
             self.stats["seconds"]["identity"] = self._identity_seconds
+            self.stats["identity_by"] = self._tracker.matched_by
         return result
 
     def _identity_state(self):

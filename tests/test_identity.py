@@ -282,6 +282,90 @@ class TestAgainstOracle:
         assert np.all(runs[0][0] >= 0)
 
 
+class TestOneKeptList:
+    """Verlet frames on the list of the last rebuild match pairs by their entry in
+    it; anything else (a rebuild, ids that changed) takes the general matching."""
+
+    def _run(self, search, frames, contacts, all_images=False, use_ids=True):
+        prev_keys, seen = None, []
+        for true_pos, shown, ids, rad, _ in frames:
+            kw = {"ids": ids} if use_ids else {}
+            out = (search.update(shown, rad, BOX, **kw) if contacts
+                   else search.update(shown, BOX, **kw))
+            pairs, shifts = out[0], out[-1]
+            keys = oracle_keys(pairs, ids if use_ids else np.arange(len(shown)), true_pos,
+                               shown, shifts, all_images)
+            if prev_keys is not None:
+                want, ended = oracle_rows(prev_keys, keys)
+                np.testing.assert_array_equal(search.previous_rows, want)
+                np.testing.assert_array_equal(search.ended_rows, ended)
+            seen.append((search.stats["rebuilt"], search.stats["identity_by"]))
+            prev_keys = keys
+        return seen
+
+    @pytest.mark.parametrize("path", ["columns", "sweep"])
+    def test_verlet_frames_match_by_entry_right_after_a_rebuild(self, threads, path):
+        frames = trajectory(11, 12, 200, churn=0, reorder=False, wrap=True, step=0.03,
+                            drift=0.05)
+        search = ContactSearch(skin=0.1, rebuild_margin=0.3, quantities="PdS", path=path,
+                               n_threads=threads, identity=True)
+        seen = self._run(search, frames, contacts=True)
+        assert seen[0] == (True, "nothing")
+        rebuilds = [t for t, (rebuilt, _) in enumerate(seen) if rebuilt]
+        assert len(rebuilds) >= 2  # the drift forces rebuilds mid-run
+        for t in range(1, len(seen)):
+            rebuilt, by = seen[t]
+            assert by == ("pairs" if rebuilt else "entries"), (t, seen)
+
+    @pytest.mark.parametrize("wrap", [False, True], ids=["unwrapped", "wrapped"])
+    def test_every_image_by_entry_across_faces(self, threads, wrap):
+        frames = trajectory(12, 10, 20, churn=0, reorder=False, wrap=wrap, drift=0.1,
+                            step=0.02)
+        search = NeighborSearch(3.4, rebuild_margin=0.8, quantities="PdS",
+                                periodic_images="all", n_threads=threads, identity=True)
+        seen = self._run(search, frames, contacts=False, all_images=True, use_ids=False)
+        assert ("entries" in {by for _, by in seen})
+
+    def test_a_verlet_frame_after_ids_change(self, threads):
+        # same rows and positions, one particle replaced (a new id at a row): no
+        # rebuild, but pairs of the new id are new and its old pairs ended
+        frames = trajectory(13, 6, 200, churn=0, reorder=False, wrap=True, step=0.01)
+        t3, g3, ids3, r3, l3 = frames[3]
+        ids3 = ids3.copy()
+        ids3[[5, 17]] = [10**6, 10**6 + 1]
+        frames[3] = (t3, g3, ids3, r3, l3)
+        for t in range(4, 6):
+            frames[t] = frames[t][:2] + (ids3,) + frames[t][3:]
+        search = NeighborSearch(1.3, rebuild_margin=0.4, quantities="PS", n_threads=threads,
+                                identity=True)
+        seen = self._run(search, frames, contacts=False)
+        assert [rebuilt for rebuilt, _ in seen[1:]] == [False] * 5
+        assert [by for _, by in seen[1:]] == ["entries", "entries", "pairs", "entries",
+                                             "entries"]
+
+    def test_minimum_image_near_half_a_cell_takes_the_general_path(self, threads):
+        # two images of a pair may both be in the kept list: not matched by entry
+        frames = trajectory(14, 6, 30, churn=0, reorder=False, wrap=True, step=0.02)
+        search = NeighborSearch(2.9, rebuild_margin=0.5, quantities="PS", n_threads=threads,
+                                identity=True)
+        seen = self._run(search, frames, contacts=False)
+        assert {by for _, by in seen[1:]} == {"pairs"}
+
+    def test_a_tracker_given_entries_that_do_not_rise(self):
+        track = PairIdentity()
+        pairs = np.array([[0, 1], [1, 2], [2, 3]])
+        track.update(pairs, 4, entries=(0, np.array([1, 2, 3])))
+        got = track.update(pairs[::-1], 4, entries=(0, np.array([3, 2, 1])))
+        assert track.matched_by == "pairs"
+        assert got.tolist() == [2, 1, 0]
+        got = track.update(pairs, 4, entries=(0, np.array([1, 2, 3])))
+        assert track.matched_by == "pairs"  # the previous entries did not rise
+        assert got.tolist() == [2, 1, 0]
+        got = track.update(pairs[1:], 4, entries=(0, np.array([2, 3])))
+        assert track.matched_by == "entries"
+        assert got.tolist() == [1, 2] and track.ended_rows.tolist() == [0]
+
+
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 60), moved=st.booleans())
 def test_any_permutation_of_ids_keeps_every_pair(seed, n, moved):

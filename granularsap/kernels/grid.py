@@ -719,15 +719,17 @@ def direct_fill(wstart, wneed, offsets, words, rec_p, rec_q, rec_s, xs, ys, zs, 
 @pjit
 def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, rec_s, ws, m,
                    rs, skin, cell, diag, strict, uniform, x2, perm, kw, want_d, want_vec,
-                   want_shift, out_p, out_d, out_v, out_s):
+                   want_shift, out_p, out_d, out_v, out_s, out_e):
     """A Verlet frame on a list of records: pass 1 (``fill`` False) counts each
     chunk's pairs in range into ``counts``, pass 2 writes them from
-    ``offsets[c]`` (rows as ``narrow_fill``'s).  Each entry's shift is corrected
+    ``offsets[c]`` (rows as ``narrow_fill``'s; ``out_e``, unless empty, the
+    entry of each row, ``64 * record + bit``, increasing).  Each entry's shift is corrected
     by the image jumps of its two particles since the build, as ``_entry`` does
     (the record's shift, with ``p``'s jump, serves every partner that jumped as
     ``p`` did, usually all); ``uniform`` and ``x2`` as for ``_hit``, ``diag`` a
     diagonal cell."""
     incl = not strict
+    want_e = out_e.shape[0] > 0
     for c in numba.prange(wstart.shape[0]):
         o = offsets[c] if fill else 0
         end = o + counts[c] if fill else 0
@@ -792,6 +794,8 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
                 if want_shift:
                     _store3(out_s, o, s0 - kw[q, 0] + kw[p, 0], s1 - kw[q, 1] + kw[p, 1],
                             s2 - kw[q, 2] + kw[p, 2], flip)
+                if want_e:
+                    out_e[o] = 64 * r + np.int64(q - ubase)
                 o += np.int64(ok)
         if not fill:
             counts[c] = cnt
@@ -840,7 +844,7 @@ def _store3(out, o, a, b, c, flip):
 @pjit
 def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, rs, skin,
                 cell, strict, perm, kw, want_d, want_vec, want_shift, out_p, out_d, out_v,
-                out_s):
+                out_s, out_e):
     """Write each chunk's pairs from ``offsets[c]`` (pass 2 of a frame).
 
     Rows are ``(i, j)`` original indices with ``i < j``; the vector and shift
@@ -848,10 +852,12 @@ def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, rs, s
     (``D = x[j] - x[i] + S @ cell``; ``kw`` is the current wrap shift).  Every
     candidate is written to the next free slot and the slot is kept only if
     the pair is in range (no unpredictable branch); a chunk never writes past
-    its own ``counts[c]`` slots.
+    its own ``counts[c]`` slots.  ``out_e``, unless empty, gets the entry of
+    each row (its index in ``vb``).
     """
     n_chunks = chunk_rows.shape[0] - 1
     incl = not strict
+    want_e = out_e.shape[0] > 0
     for c in numba.prange(n_chunks):
         o = offsets[c]
         end = o + counts[c]
@@ -880,6 +886,8 @@ def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, rs, s
                     # w = x - k @ cell:  D = x_q - x_p + (S - k_q + k_p) @ cell
                     _store3(out_s, o, s0 - kw[q, 0] + kw[p, 0], s1 - kw[q, 1] + kw[p, 1],
                             s2 - kw[q, 2] + kw[p, 2], flip)
+                if want_e:
+                    out_e[o] = e
                 o += np.int64(ok)
 
 

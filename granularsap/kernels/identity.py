@@ -34,6 +34,15 @@ whole cell vectors each particle jumped between the two calls (``jumps``),
 equals the previous one (negated when the two particles come in the other
 order, either sign for a particle's own image).
 
+Two calls on one kept list (``match_entries``)
+---------------------------------------------
+A Verlet frame re-tests the list its search kept at the last rebuild, in the
+list's order, and each pair of its result carries its entry in that list
+(increasing along the result).  When the previous call re-tested the same
+list, with the same particles in the same rows, a pair continues exactly
+when its entry was in the previous result: a merge of two increasing
+sequences, O(pairs) streaming reads, no lookup by particle.
+
 Keys (``key_table``, ``match_keys``)
 -----------------------------------
 Contacts given by integer keys (any number of int64 columns) are matched
@@ -339,6 +348,57 @@ def match_pairs(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs,
 
 
 @pjit
+def match_entries(prev_entries, entries, bounds, prev_rows, matched, rising):
+    """Two calls on one kept list (module docstring): ``prev_rows[r]`` the row of
+    ``prev_entries`` equal to ``entries[r]`` or -1, ``matched[q] = 1`` for every row
+    found.  Both increasing: chunk ``c`` of rows ``bounds[c]:bounds[c + 1]`` finds
+    its first entry by bisection, then merges.  ``rising[c]`` says whether the
+    chunk's entries increase (the caller checks the joins between chunks)."""
+    k_prev = prev_entries.shape[0]
+    for c in numba.prange(bounds.shape[0] - 1):
+        lo = bounds[c]
+        end = bounds[c + 1]
+        rising[c] = 1
+        if lo >= end:
+            continue
+        v = entries[lo]
+        a = np.int64(0)
+        b = np.int64(k_prev)
+        while a < b:
+            mid = (a + b) >> 1
+            if prev_entries[mid] < v:
+                a = mid + 1
+            else:
+                b = mid
+        q = a
+        last = v - 1
+        for r in range(lo, end):
+            v = entries[r]
+            if v <= last:
+                rising[c] = 0
+            last = v
+            while q < k_prev and prev_entries[q] < v:
+                q += 1
+            if q < k_prev and prev_entries[q] == v:
+                prev_rows[r] = q
+                matched[q] = 1
+                q += 1
+            else:
+                prev_rows[r] = -1
+
+
+@pjit
+def entries_rising(entries, bounds, rising):
+    """``rising[c]``: whether ``entries[bounds[c]:bounds[c + 1]]`` increases."""
+    for c in numba.prange(bounds.shape[0] - 1):
+        rising[c] = 1
+        for r in range(bounds[c] + 1, bounds[c + 1]):
+            if entries[r] <= entries[r - 1]:
+                rising[c] = 0
+                break
+
+
+@pjit
 def unmatched_rows(matched, bounds, counts, out, fill):
     """Rows ``q`` with ``matched[q] == 0`` in increasing order: pass 1 (``fill``
     False) counts chunk ``c``'s into ``counts[c]``, pass 2 writes them from
@@ -413,4 +473,5 @@ def match_keys(keys, prev_keys, shift, slots, bounds, prev_rows, matched):
 
 #: the parallel kernels of this module, compiled serially (same names)
 serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in (
-    "group_pairs", "match_pairs", "unmatched_rows", "match_keys")})
+    "group_pairs", "match_pairs", "match_entries", "entries_rising", "unmatched_rows",
+    "match_keys")})
