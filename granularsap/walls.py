@@ -450,25 +450,14 @@ class WallContacts(NamedTuple):
     point: np.ndarray
 
 
-def _empty_contacts():
-    e = np.empty(0, np.int64)
-    return WallContacts(e, e.copy(), e.copy(), e.copy(), np.empty(0), np.empty((0, 3)),
-                        np.empty((0, 3)))
-
-
 #: columns of an identity key: sphere (id or row), wall, feature kind, feature
 #: id (triangle, or smaller vertex of an edge, or vertex), second vertex of an
 #: edge (else -1), and the rank among equal keys of one call (periodic images)
 _KEY_COLUMNS = 6
-
-
-def _member(values, pool):
-    """``np.isin(values, pool)`` by a sort and binary searches (int64)."""
-    if len(pool) == 0 or len(values) == 0:
-        return np.zeros(len(values), bool)
-    pool = np.sort(pool)
-    at = np.minimum(np.searchsorted(pool, values), len(pool) - 1)
-    return pool[at] == values
+#: empty stand-ins for optional kernel arguments (no ids, no shift, no keys)
+_NO_IDS = np.empty(0, np.int64)
+_NO_ROWS3 = np.empty((0, 3))
+_NO_KEYS = np.empty((0, _KEY_COLUMNS), np.int64)
 
 
 def _as_ids(ids, n):
@@ -562,6 +551,13 @@ class WallSearch:
         self.n_threads = check_n_threads(n_threads)
         self._geo = {}
         self._engines = {}
+        # kept work arrays: staging rows, scratch, double-buffered outputs, keys
+        self._st_i = np.empty((16, _tri.STAGE_INT), np.int64)
+        self._st_f = np.empty((16, _tri.STAGE_FLOAT))
+        self._work = {}
+        self._out = [None, None]
+        self._flip = 0
+        self._keys = np.empty((0, _KEY_COLUMNS), np.int64)
         # contacts matched across calls by their integer keys (granularsap.identity)
         self._tracker = ContactIdentity(n_threads=self.n_threads) if self.identity else None
         #: per call: spheres, candidates tested, contacts, threads
@@ -651,7 +647,9 @@ class WallSearch:
         Returns
         -------
         WallContacts
-            Rows sorted by sphere, wall, element and feature; fresh arrays.
+            Rows sorted by sphere, wall, element and feature.  The arrays are
+            the search's own, double-buffered: valid and unchanged until the
+            call after next (copy them to keep them longer).
 
         Raises
         ------
@@ -674,30 +672,73 @@ class WallSearch:
             xw = cell.wrap(x)
             delta = x - xw  # given minus wrapped position (whole cell vectors)
         else:
-            xw, delta = x, None
-        parts = []
+            xw, delta = x, _NO_ROWS3
+        # every wall writes staging rows (sorted by sphere within its part), then
+        # one pass merges the parts into the outputs
+        bounds = [0]
         tested = 0
+        planes = [w for w, wall in enumerate(self.walls) if isinstance(wall, Plane)]
+        if planes:
+            pts, nrm = self._plane_arrays(planes, cell)
+            wid = np.asarray(planes, np.int64)
+            k = _tri.plane_contacts(x, h, pts, nrm, wid, self._st_i, self._st_f, 0)
+            if k > len(self._st_i):
+                self._grow_stage(k, 0)
+                _tri.plane_contacts(x, h, pts, nrm, wid, self._st_i, self._st_f, 0)
+            bounds.append(k)
+            tested += n * len(planes)
         for w, wall in enumerate(self.walls):
-            if isinstance(wall, Plane):
-                parts.append(self._plane(w, wall, x, h, cell))
-                tested += n
-            else:
-                got, cand = self._mesh(w, wall, verts[w], xw, h, cell, delta, threads)
-                parts.append(got)
-                tested += cand
-        cols = [np.concatenate([p[c] for p in parts]) for c in range(9)]
-        sphere, wall_i, element, feature, fid2, distance, normal, point, rel = cols
-        fid, fid2 = fid2[:, 0], fid2[:, 1]
-        order = np.lexsort((rel[:, 2], rel[:, 1], rel[:, 0], fid2, fid, feature, element, wall_i,
-                            sphere))
-        sphere, wall_i, element, feature = (a[order] for a in (sphere, wall_i, element, feature))
-        fid, fid2, distance = fid[order], fid2[order], distance[order]
-        normal, point = normal[order], point[order]
-        result = WallContacts(sphere, wall_i, element, feature, distance, normal, point)
-        self.stats = {"spheres": n, "candidates_tested": int(tested), "contacts": len(sphere)}
+            if isinstance(wall, TriangleMesh):
+                tested += self._mesh(w, wall, verts[w], xw, h, cell, delta, threads, bounds)
+        k = bounds[-1]
+        self._flip ^= 1
+        out = self._out[self._flip]
+        if out is None or len(out[0]) < k:
+            size = max(k, 2 * (0 if out is None else len(out[0])), 16)
+            out = self._out[self._flip] = (
+                np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size, np.int64),
+                np.empty(size, np.int64), np.empty(size), np.empty((size, 3)),
+                np.empty((size, 3)))
+        keys = self._keys
+        if self.identity and len(keys) < k:
+            keys = self._keys = np.empty((max(k, 2 * len(keys)), _KEY_COLUMNS), np.int64)
+        _tri.merge_walls(self._st_i, self._st_f, np.asarray(bounds, np.int64),
+                         _NO_IDS if ids is None else sphere_key, *out,
+                         keys if self.identity else _NO_KEYS)
+        result = WallContacts(*(a[:k] for a in out))
+        self.stats = {"spheres": n, "candidates_tested": int(tested), "contacts": k}
         if self.identity:
-            self._identify(sphere_key[sphere], wall_i, feature, fid, fid2)
+            self._tracker.update(keys[:k])
         return result
+
+    def _grow_stage(self, need, keep):
+        """Staging rows for ``need`` contacts, the first ``keep`` rows kept."""
+        size = max(need, 2 * len(self._st_i))
+        st_i = np.empty((size, _tri.STAGE_INT), np.int64)
+        st_f = np.empty((size, _tri.STAGE_FLOAT))
+        st_i[:keep] = self._st_i[:keep]
+        st_f[:keep] = self._st_f[:keep]
+        self._st_i, self._st_f = st_i, st_f
+
+    def _scratch(self, name, shape, dtype=np.float64):
+        """A kept work array with at least ``shape[0]`` rows (grown by doubling)."""
+        got = self._work.get(name)
+        if got is None or len(got) < shape[0]:
+            rows = max(shape[0], 2 * (0 if got is None else len(got)), 16)
+            got = self._work[name] = np.empty((rows, *shape[1:]), dtype)
+        return got
+
+    def _plane_arrays(self, planes, cell):
+        """Points and normals (p, 3) of the planes, checked against the cell."""
+        pts = np.empty((len(planes), 3))
+        nrm = np.empty((len(planes), 3))
+        for j, w in enumerate(planes):
+            plane = self.walls[w]
+            pts[j] = plane.point
+            nrm[j] = plane.normal
+            if cell is not None:
+                self._check_plane(w, plane, cell)
+        return pts, nrm
 
     def _vertices_for(self, vertices):
         """The vertices of each mesh for this call (None for planes)."""
@@ -725,27 +766,18 @@ class WallSearch:
             current[i] = self.walls[i]._checked_vertices(v, f"vertices[{i}]")
         return current
 
-    def _plane(self, w, plane, x, h, cell):
+    @staticmethod
+    def _check_plane(w, plane, cell):
         n = plane.normal
-        if cell is not None:
-            m = cell.matrix[cell.pbc]
-            lengths = np.linalg.norm(m, axis=1)
-            off = np.abs(m @ n) > 1e-12 * lengths
-            if off.any():
-                axis = int(np.flatnonzero(cell.pbc)[np.flatnonzero(off)[0]])
-                raise ValueError(
-                    f"walls[{w}] is a Plane with normal {n.tolist()} that is not perpendicular "
-                    f"to periodic cell vector {axis}; a half-space wall needs the periodic "
-                    "axes parallel to it (make that axis open with pbc, or use a mesh)")
-        d = (x - plane.point) @ n
-        hit = np.flatnonzero(d <= h)
-        k = len(hit)
-        zeros = np.zeros(k, np.int64)
-        fid = np.zeros((k, 2), np.int64)
-        fid[:, 1] = -1
-        return (hit.astype(np.int64), np.full(k, w, np.int64), zeros, zeros.copy(), fid,
-                d[hit], np.broadcast_to(n, (k, 3)).copy(), x[hit] - d[hit, None] * n,
-                np.zeros((k, 3), np.int64))
+        m = cell.matrix[cell.pbc]
+        lengths = np.linalg.norm(m, axis=1)
+        off = np.abs(m @ n) > 1e-12 * lengths
+        if off.any():
+            axis = int(np.flatnonzero(cell.pbc)[np.flatnonzero(off)[0]])
+            raise ValueError(
+                f"walls[{w}] is a Plane with normal {n.tolist()} that is not perpendicular "
+                f"to periodic cell vector {axis}; a half-space wall needs the periodic "
+                "axes parallel to it (make that axis open with pbc, or use a mesh)")
 
     def _images(self, tri, cell, hmax):
         """Triangle rows and integer lattice shifts of every image within reach of
@@ -805,141 +837,55 @@ class WallSearch:
         self._geo[w] = (verts, key, geo)
         return geo
 
-    def _mesh(self, w, mesh, verts, xw, h, cell, delta, threads):
+    def _mesh(self, w, mesh, verts, xw, h, cell, delta, threads, bounds):
+        """Staging rows of one mesh's contacts (appended; ``bounds`` gets the
+        part's end); returns the number of candidates tested."""
         n = len(xw)
         if cell is not None:
-            corners, _, face_edges = mesh._periodic_adjacency(verts, cell)
+            corners, edges, face_edges = mesh._periodic_adjacency(verts, cell)
         else:
-            corners, face_edges = mesh._corners, mesh._face_edges
+            corners, edges, face_edges = mesh._corners, mesh._edges, mesh._face_edges
         hmax = float(h.max()) if n else 0.0
         if threads is None and n + len(mesh.faces) < _PARALLEL_MIN:
             threads = 1
         rows, shifts, itri, tlo, thi, top = self._geometry(w, mesh, verts, cell, hmax, threads)
+        base = bounds[-1]
         if n == 0 or len(itri) == 0:
-            return self._mesh_rows(w, np.empty(0, np.int64), np.empty(0, np.int64),
-                                   np.empty(0, np.int64), np.empty((0, 2), np.int64),
-                                   np.empty(0), np.empty((0, 3)), np.empty((0, 3)),
-                                   np.empty((0, 3), np.int64)), 0
-        scale = max(float(np.abs(xw).max()), top)
-        pad = h + _GUARD * (np.abs(h) + scale)
+            bounds.append(base)
+            return 0
         with num_threads(threads) as used:
+            kern = _tri if used > 1 else _tri.serial
+            lo = self._scratch("lower", (n, 3))
+            hi = self._scratch("upper", (n, 3))
+            lo, hi = lo[:n], hi[:n]
+            kern.sphere_boxes(xw, h, top, _GUARD, lo, hi)
             engine = self._engines.get(w)
             if engine is None:
                 engine = self._engines[w] = SweepAndPrune()
             engine.n_threads = used
-            # the engine keeps the triangles' grid while they do not move
-            cand = engine.update(xw - pad[:, None], xw + pad[:, None], tlo, thi)
+            # the engine keeps the triangles' grid while they do not move; its
+            # pairs come sorted by sphere
+            cand = engine.update(lo, hi, tlo, thi)
             k = len(cand)
-            dist = np.empty(k)
-            point = np.empty((k, 3))
-            region = np.empty(k, np.int64)
-            if k:
-                kern = _tri if used > 1 else _tri.serial
-                kern.sphere_triangles(cand, xw, itri, dist, point, region)
-        hit = np.flatnonzero(dist <= h[cand[:, 0]])
-        s, img = cand[hit, 0], cand[hit, 1]
-        dist, point, region = dist[hit], point[hit], region[hit]
-        t = rows[img]
-        kind = np.where(region == _tri.FACE, FACE, np.where(region <= _tri.EDGE_CA, EDGE, VERTEX))
-        edge = face_edges[t, np.clip(region - 1, 0, 2)]
-        vert = corners[t, np.clip(region - 4, 0, 2)]
-        fid = np.where(kind == FACE, t, np.where(kind == EDGE, edge, vert))
-        keep = self._dedup(s, t, img, kind, fid, dist, _TIE * h[s], corners, face_edges)
-        s, t, img, kind, fid = s[keep], t[keep], img[keep], kind[keep], fid[keep]
-        dist, point = dist[keep], point[keep]
-        centre = xw[s]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            normal = (centre - point) / dist[:, None]
-        flat = ~(dist > 0)
-        if flat.any():
-            tr = itri[img[flat]]
-            nrm = np.cross(tr[:, 1] - tr[:, 0], tr[:, 2] - tr[:, 0])
-            normal[flat] = nrm / np.linalg.norm(nrm, axis=1)[:, None]
-        if delta is not None:
-            point = point + delta[s]
-        edges = mesh._edges if cell is None else mesh._periodic_adjacency(verts, cell)[1]
-        fid2 = np.full((len(s), 2), -1, np.int64)
-        fid2[:, 0] = fid
-        is_edge = kind == EDGE
-        fid2[is_edge] = edges[fid[is_edge]]
-        rel = shifts[img]
-        if cell is not None and len(s):
-            # the image's shift relative to the sphere's given position
-            rel = rel + np.rint(cell.fractional(delta[s] + cell.origin)).astype(np.int64)
-        return self._mesh_rows(w, s, t, kind, fid2, dist, normal, point, rel), len(cand)
-
-    @staticmethod
-    def _dedup(s, t, img, kind, fid, dist, tol, corners, face_edges):
-        """Rows kept by the face / edge / vertex rule for one mesh (vectorised).
-
-        1. an edge or vertex contact is shadowed when another triangle having
-           that edge or vertex is closer to the centre by more than ``tol``
-           (its own closest point lies elsewhere: the point is no local
-           minimum of the distance over the surface);
-        2. a face contact counts; an edge contact counts when no triangle having
-           that edge has a face contact; a vertex contact counts when no
-           triangle having that vertex has a face or an edge contact;
-        3. each edge and each vertex once (its lowest triangle, then image).
-        """
-        k = len(s)
-        if k == 0:
-            return np.empty(0, np.int64)
-        big = np.int64(max(int(corners.max()), int(face_edges.max()), int(t.max())) + 1)
-        face = kind == FACE
-        edge = kind == EDGE
-        vertex = kind == VERTEX
-        key = s * big + fid
-        ok = np.ones(k, bool)
-        # 1. the closest raw contact of any triangle around each edge and vertex
-        for sel, around in ((edge, face_edges), (vertex, corners)):
-            if not sel.any():
-                continue
-            near = (s[:, None] * big + around[t]).ravel()
-            d = np.repeat(dist, 3)
-            order = np.argsort(near, kind="stable")
-            near, d = near[order], d[order]
-            start = np.flatnonzero(np.concatenate(([True], near[1:] != near[:-1])))
-            closest = np.minimum.reduceat(d, start)
-            at = np.searchsorted(near[start], key[sel])
-            ok[sel] = closest[at] >= dist[sel] - tol[sel]
-        # 2. edges of triangles with a face contact; vertices of triangles with a
-        # face or an edge contact
-        blocked_e = (s[face][:, None] * big + face_edges[t[face]]).ravel()
-        touched = face | edge
-        blocked_v = (s[touched][:, None] * big + corners[t[touched]]).ravel()
-        ok[edge] &= ~_member(key[edge], blocked_e)
-        ok[vertex] &= ~_member(key[vertex], blocked_v)
-        cand = np.flatnonzero(ok)
-        # 3. edges and vertices once: the lowest triangle (then image) of each
-        once = cand[~face[cand]]
-        order = once[np.lexsort((img[once], t[once], key[once], kind[once]))]
-        first = np.ones(len(order), bool)
-        first[1:] = (kind[order][1:] != kind[order][:-1]) | (key[order][1:] != key[order][:-1])
-        return np.sort(np.concatenate((cand[face[cand]], order[first])))
-
-    @staticmethod
-    def _mesh_rows(w, s, t, kind, fid2, dist, normal, point, rel):
-        k = len(s)
-        return (s.astype(np.int64), np.full(k, w, np.int64), t.astype(np.int64),
-                kind.astype(np.int64), fid2, dist, normal, point, rel)
-
-    def _identify(self, skey, wall, feature, fid, fid2):
-        k = len(skey)
-        keys = np.empty((k, _KEY_COLUMNS), np.int64)
-        keys[:, 0] = skey
-        keys[:, 1] = wall
-        keys[:, 2] = feature
-        keys[:, 3] = fid
-        keys[:, 4] = fid2
-        keys[:, 5] = 0
-        if k > 1:
-            # rank among equal keys (a feature touched in two periodic images of the
-            # mesh), in the order of their relative lattice shifts (rows are sorted so)
-            order = np.lexsort(tuple(keys[:, c] for c in reversed(range(5))))
-            s = keys[order, :5]
-            same = np.concatenate(([False], (s[1:] == s[:-1]).all(axis=1)))
-            if same.any():
-                start = np.flatnonzero(~same)
-                run = np.repeat(start, np.diff(np.append(start, k)))
-                keys[order, 5] = np.arange(k) - run
-        self._tracker.update(keys)
+            if k == 0:
+                bounds.append(base)
+                return 0
+            dist = self._scratch("dist", (k,))
+            point = self._scratch("point", (k, 3))
+            ints = [self._scratch(name, (k + 1,), np.int64)
+                    for name in ("region", "elem", "kind", "fid", "f0", "f1", "gstart",
+                                 "offsets", "order")]
+            slots = _tri._SLOTS * k
+            table = (self._scratch("hkey", (slots,), np.int64),
+                     self._scratch("hdist", (slots,)),
+                     self._scratch("hkind", (slots,), np.int64),
+                     self._scratch("hbest", (slots,), np.int64))
+            groups, total = kern.mesh_select(cand, xw, h, _TIE, itri, rows, shifts, corners,
+                                             face_edges, edges, dist, point, *ints, *table)
+            if base + total > len(self._st_i):
+                self._grow_stage(base + total, base)
+            _, elem, kind, _, f0, f1, gstart, offsets, order = ints
+            kern.mesh_fill(cand, xw, itri, dist, point, elem, kind, f0, f1, gstart, offsets,
+                           order, groups, w, delta, self._st_i, self._st_f, base)
+        bounds.append(base + total)
+        return k

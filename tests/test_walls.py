@@ -415,6 +415,114 @@ class TestRandom:
             np.testing.assert_array_equal(a, b)
 
 
+def uv_sphere(m=8, radius=1.0):
+    """A closed latitude-longitude sphere mesh (2 m (m - 1) triangles)."""
+    v = [[0.0, 0.0, radius], [0.0, 0.0, -radius]]
+    for i in range(1, m):
+        th = np.pi * i / m
+        for j in range(m):
+            ph = 2 * np.pi * j / m
+            v.append([radius * np.sin(th) * np.cos(ph), radius * np.sin(th) * np.sin(ph),
+                      radius * np.cos(th)])
+    ring = lambda i, j: 2 + (i - 1) * m + j % m  # noqa: E731
+    f = [[0, ring(1, j), ring(1, j + 1)] for j in range(m)]
+    f += [[1, ring(m - 1, j + 1), ring(m - 1, j)] for j in range(m)]
+    for i in range(1, m - 1):
+        for j in range(m):
+            f += [[ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)],
+                  [ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)]]
+    return np.array(v), np.array(f)
+
+
+def _rows(c):
+    """The contacts as tuples (sphere, wall, element, feature, distance, normal, point)."""
+    return [(int(c.sphere[i]), int(c.wall[i]), int(c.element[i]), int(c.feature[i]),
+             float(c.distance[i]), *c.normal[i].tolist(), *c.point[i].tolist())
+            for i in range(len(c.sphere))]
+
+
+class TestFusedPaths:
+    """Planes only, meshes only, both in any order, growing and empty outputs."""
+
+    @pytest.mark.parametrize("n_threads", [1, 2])
+    def test_walls_in_any_order_equal_one_search_per_wall(self, n_threads):
+        rng = np.random.default_rng(11)
+        v, f = bumpy_mesh(rng, 6)
+        v2, f2 = grid_floor(3, 3, z=0.7, step=2.0)
+        walls = [TriangleMesh(v, f), Plane([0, 0, 0], [1, 0, 0]), TriangleMesh(v2, f2),
+                 Plane([0, 0, 0.2], [0, 0, 1]), Plane([6, 0, 0], [-1, 0.5, 0])]
+        x = np.column_stack((rng.uniform(-0.5, 6.5, (600, 2)), rng.uniform(-1, 1.5, 600)))
+        r = rng.uniform(0.05, 0.5, 600)
+        c = WallSearch(walls, skin=0.02, n_threads=n_threads).update(x, r)
+        want = []
+        for w, wall in enumerate(walls):
+            alone = WallSearch([wall], skin=0.02, n_threads=n_threads).update(x, r)
+            want += [(s, w, *rest) for s, _, *rest in _rows(alone)]
+        want.sort(key=lambda t: t[:2])  # stable: each wall's own order within
+        assert len(want) > 100  # staging and outputs grow past their first size
+        assert _rows(c) == want
+        for wall in (0, 2):
+            vv, ff = (v, f) if wall == 0 else (v2, f2)
+            assert_matches(c, oracle_contacts(x, r, vv, ff, skin=0.02), wall=wall,
+                           rtol=1e-9, atol=1e-9)
+
+    @pytest.mark.parametrize("n_threads", [1, 2])
+    def test_planes_only(self, n_threads):
+        rng = np.random.default_rng(4)
+        planes = [Plane(rng.normal(size=3), rng.normal(size=3)) for _ in range(5)]
+        x = rng.normal(size=(2000, 3)) * 2
+        r = rng.uniform(0, 0.5, 2000)
+        c = WallSearch(planes, skin=0.1, n_threads=n_threads).update(x, r)
+        want = []
+        for s in range(len(x)):
+            for w, p in enumerate(planes):
+                d = (x[s] - p.point) @ p.normal
+                if d <= r[s] + 0.1:
+                    want.append((s, w, d))
+        assert [(int(a), int(b)) for a, b in zip(c.sphere, c.wall, strict=True)] == [
+            t[:2] for t in want]
+        np.testing.assert_allclose(c.distance, [t[2] for t in want], rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(c.normal, np.array([planes[w].normal for w in c.wall]))
+        np.testing.assert_allclose(c.point, x[c.sphere] - c.distance[:, None] * c.normal,
+                                   atol=1e-12)
+
+    @pytest.mark.parametrize("n_threads", [1, 2])
+    def test_many_contacts_of_one_sphere(self, n_threads):
+        # a sphere filling a closed mesh touches every face (its kept rows are
+        # sorted by a merge sort past a few), one outside touches a few
+        v, f = uv_sphere(10)
+        x = np.array([[0.0, 0.0, 0.0], [1.3, 0.2, 0.1], [0.01, -0.02, 0.03]])
+        r = np.array([1.0, 0.45, 0.99])
+        c = WallSearch([TriangleMesh(v, f)], n_threads=n_threads).update(x, r)
+        assert np.sum(c.sphere == 0) > 50 and np.sum(c.sphere == 2) > 16
+        assert_matches(c, oracle_contacts(x, r, v, f), rtol=1e-9, atol=1e-9)
+        assert _rows(c) == sorted(_rows(c), key=lambda t: t[:4])
+
+    def test_empty_parts(self):
+        v, f = grid_floor(2, 2)
+        walls = WallSearch([Plane([0, 0, -5], [0, 0, 1]), TriangleMesh(v, f),
+                            Plane([0, 0, 5], [0, 0, -1])], identity=True)
+        far = [[1.0, 1.0, 2.0]]  # no plane, no triangle in reach
+        assert all(len(a) == 0 for a in walls.update(far, 0.1))
+        c = walls.update([[1.0, 1.0, 0.05], [9.0, 9.0, 4.95]], 0.1)  # mesh, then a plane
+        assert c.sphere.tolist() == [0, 1] and c.wall.tolist() == [1, 2]
+        assert walls.previous_rows.tolist() == [-1, -1]
+        assert all(len(a) == 0 for a in walls.update(far, 0.1))
+        assert walls.ended_rows.tolist() == [0, 1]
+
+    def test_results_survive_the_next_call(self):
+        # outputs are double-buffered: valid and unchanged until the call after next
+        v, f = grid_floor(4, 4)
+        walls = WallSearch([Plane([0, 0, 0], [1, 0, 0]), TriangleMesh(v, f)])
+        rng = np.random.default_rng(5)
+        first = walls.update(rng.uniform(0, 4, (50, 3)) * [1, 1, 0.1], 0.3)
+        kept = [a.copy() for a in first]
+        second = walls.update(rng.uniform(0, 4, (400, 3)) * [1, 1, 0.1], 0.3)  # grows
+        for a, b in zip(first, kept, strict=True):
+            np.testing.assert_array_equal(a, b)
+        assert not np.shares_memory(first.sphere, second.sphere)
+
+
 # ----------------------------------------------------------------- planes
 
 
