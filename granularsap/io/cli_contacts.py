@@ -79,7 +79,8 @@ def add_arguments(parser):
     parser.add_argument("--topology", default=None, metavar="FILE",
                         help="topology file for MDAnalysis (e.g. for DCD/XTC)")
     parser.add_argument("--threads", type=_positive_int, default=None, metavar="N",
-                        help="numba threads per frame (default: all; 1 per worker with --workers)")
+                        help="numba threads per frame (default: all cores; with --workers N, "
+                             "cores / N per worker)")
     dist = parser.add_mutually_exclusive_group()
     dist.add_argument("--workers", type=_positive_int, default=None, metavar="N",
                       help="start a local Dask cluster with N worker processes")
@@ -106,6 +107,14 @@ def run(args) -> int:
     from .pipeline import ContactParams, check_output, compute_contacts
 
     threads = args.threads
+    if threads is not None:
+        from .._numba import max_threads
+
+        top = max_threads()
+        if threads > top:
+            raise CLIError(f"--threads {threads} is more than the {top} threads numba can run "
+                           f"here (the cores, or NUMBA_NUM_THREADS if set); give --threads 1 "
+                           f"to {top}")
     if threads is None and args.workers is not None:
         import os
 
