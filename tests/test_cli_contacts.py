@@ -193,6 +193,25 @@ class TestErrors:
         (row,) = [line for line in docs.splitlines() if line.startswith("| `--threads N` |")]
         assert row.split("|")[2].strip().replace("`", "") == " ".join(action.help.split())
 
+    @pytest.mark.parametrize("json_out", [False, True], ids=["text", "json"])
+    def test_info_into_a_closed_pipe_exits_quietly(self, tmp_path, json_out):
+        """Issue 20: `granularsap info f.h5 | head -1` said "[Errno 32] Broken pipe", exit 2."""
+        dump = tmp_path / "p.dump"
+        write_dump(dump, random_frames(20, 3, cell=lammps_cell(5, 5, 5)),
+                   columns=("id", "radius", "x", "y", "z"))
+        out = tmp_path / "p.h5"
+        assert main(["contacts", str(dump), "-o", str(out), "-q"]) == 0
+        read, write = os.pipe()
+        os.close(read)  # the reader is gone before the first line
+        try:
+            proc = subprocess.run([sys.executable, "-m", "granularsap", "info", str(out),
+                                   *(["--json"] if json_out else [])],
+                                  stdout=write, stderr=subprocess.PIPE, text=True, timeout=120)
+        finally:
+            os.close(write)
+        assert proc.stderr == ""
+        assert proc.returncode == 141  # 128 + SIGPIPE, as a shell reports `head`'s writer
+
     @pytest.mark.parametrize("frames", ["a:b", "-1:", "0:5:0", "1:2:3:4"])
     def test_bad_frames_is_a_usage_error(self, tmp_path, frames, capsys):
         with pytest.raises(SystemExit) as exc:
