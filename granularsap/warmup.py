@@ -3,13 +3,15 @@
 granularsap's kernels are compiled by numba on first use and cached on disk
 (``cache=True``): the first ``granularsap contacts`` on a fresh install spends
 most of its time compiling, every later run loads the compiled code in a
-fraction of a second.  ``granularsap warmup`` calls the public functions the
-command line uses (:func:`granularsap.sphere_contacts`,
-:func:`~granularsap.neighbor_pairs`, :func:`~granularsap.clump_contacts`,
-:func:`~granularsap.box_overlaps`, and the boxes' column path) on tiny inputs,
-open and periodic, with one thread and with two (the serial kernels small
-inputs take and the parallel ones large inputs take), so that the cache is
-filled before the first real run (useful in a container image or before
+fraction of a second.  ``granularsap warmup`` runs, on tiny inputs, what each
+command and search runs, group by group (:data:`GROUPS`): the searches of
+``granularsap contacts`` in every mode and the one-shot functions, on both
+candidate paths (the column sweep and the paper's Sweep and Prune, either of
+which ``path="auto"`` may take), with one thread and with two (the serial
+kernels small inputs take and the parallel ones large inputs take), open,
+periodic, triclinic and partly periodic; the stateful searches' Verlet lists
+and other outputs; the boxes; the MDAnalysis and ASE drop-ins.  So the cache
+is filled before the first real run (useful in a container image or before
 starting many worker processes).
 
 :func:`compile_notice` is how the command line notices a cold cache: it
@@ -32,17 +34,35 @@ __all__ = ["compile_notice", "warmup"]
 DESCRIPTION = """\
 Compile granularsap's numba kernels now, so that the first real run does not.
 Kernels are compiled on first use and cached on disk (numba's cache: the
-__pycache__ folders of the installed package, or NUMBA_CACHE_DIR); a cold
-cache costs the first `granularsap contacts` about 20 s. This command calls
-sphere_contacts, neighbor_pairs, clump_contacts and box_overlaps on tiny open
-and periodic inputs; --only sphere_contacts,neighbor_pairs,clump_contacts
-compiles just what `granularsap contacts` needs.
+__pycache__ folders of the installed package, or NUMBA_CACHE_DIR). This
+command runs what each command and search runs, on tiny inputs, group by group
+(one line per group on stderr): contacts (`granularsap contacts` in every mode,
+`granularsap info`, `validate`, sphere_contacts, neighbor_pairs,
+clump_contacts), search (NeighborSearch and ContactSearch with a Verlet list,
+vectors, shifts, CSR, every image), boxes (box_overlaps, SweepAndPrune) and
+dropins (granularsap.mda, granularsap.ase). --only contacts is what the quick
+start needs.
 """
 
-#: the public functions warmup compiles, in the order it calls them
+#: the groups warmup compiles, in the order it runs them, with what each covers
+GROUPS = {
+    "contacts": "granularsap contacts (every mode), info and validate; sphere_contacts, "
+                "neighbor_pairs, clump_contacts",
+    "search": "NeighborSearch and ContactSearch beyond those: Verlet lists (rebuild_margin), "
+              "vectors and shifts, layout='csr', periodic_images='all'",
+    "boxes": "box_overlaps and SweepAndPrune",
+    "dropins": "granularsap.mda (capped_distance, self_capped_distance, FastNS, Contacts) "
+               "and granularsap.ase (neighbor_list, NeighborList)",
+}
+
+#: older names accepted by ``--only``: the group that compiles what they use
+ALIASES = {"sphere_contacts": "contacts", "neighbor_pairs": "contacts",
+           "clump_contacts": "contacts", "box_overlaps": "boxes"}
+
+#: kept for callers of the first version: the public functions of the contacts group
 FUNCTIONS = ("sphere_contacts", "neighbor_pairs", "clump_contacts", "box_overlaps")
 
-NOTICE = ("granularsap: compiling numba kernels on first use (once, about 20 s; they are "
+NOTICE = ("granularsap: compiling numba kernels on first use (once, about 40 s; they are "
           "cached for the next runs; `granularsap warmup` compiles them ahead)")
 
 
@@ -88,6 +108,14 @@ def compile_notice(*, quiet=False, stream=None):
     Yields the counter; ``.count`` is the number of kernel compilations seen.
     Nothing is printed when every kernel comes from the cache, or with
     ``quiet=True``.
+
+    Examples
+    --------
+    >>> import granularsap
+    >>> with compile_notice(quiet=True) as counter:
+    ...     _ = granularsap.neighbor_pairs([[0.0, 0, 0], [1.0, 0, 0]], 1.5)
+    >>> counter.count >= 0
+    True
     """
     from numba.core import event
 
@@ -98,6 +126,45 @@ def compile_notice(*, quiet=False, stream=None):
     counter = _CompileCounter(on_first=say)
     with event.install_listener("numba:compile", counter.listener):
         yield counter
+
+
+def kernel_signatures():
+    """Every compiled (or cache-loaded) signature of granularsap's kernels in this process.
+
+    A set of ``(module.qualname, signature)``; what a workload adds to it is what
+    it needed beyond what ran before (for tests of :func:`warmup`).
+
+    Examples
+    --------
+    >>> import granularsap
+    >>> _ = granularsap.neighbor_pairs([[0.0, 0, 0], [1.0, 0, 0]], 1.5)
+    >>> any(name.startswith("granularsap.kernels.") for name, _ in kernel_signatures())
+    True
+    """
+    import types
+
+    from numba.core.dispatcher import Dispatcher
+
+    from ._numba import _ParallelKernel
+
+    found = set()
+
+    def visit(v, depth=0):
+        if isinstance(v, _ParallelKernel):
+            v = v._dispatcher
+        if isinstance(v, Dispatcher):
+            if _ours(v):
+                name = f"{v.py_func.__module__}.{v.py_func.__qualname__}"
+                found.update((name, str(sig)) for sig in v.signatures)
+        elif isinstance(v, types.SimpleNamespace) and depth == 0:
+            for w in vars(v).values():
+                visit(w, 1)
+
+    for name, mod in list(sys.modules.items()):
+        if mod is not None and name.split(".")[0] in ("granularsap", "lammps_bridge"):
+            for v in list(vars(mod).values()):
+                visit(v)
+    return found
 
 
 def _inputs(seed=0):
@@ -114,52 +181,203 @@ def _inputs(seed=0):
     return pos, radii, clumps, boxes
 
 
-def warmup(functions=FUNCTIONS):
-    """Compile (or load from the cache) the kernels of the given public functions.
+def _threads():
+    import numba
+
+    # one thread runs the serial kernels; more threads the parallel ones, which
+    # large inputs take
+    return (1, 2) if numba.config.NUMBA_NUM_THREADS >= 2 else (1,)
+
+
+def _paths():
+    return ("columns", "sweep")
+
+
+def _warm_contacts(modes=("spheres", "cutoff", "clumps")):
+    """What `granularsap contacts` runs per frame (its FrameSearch, births and deaths),
+    and so the one-shot functions, in the given modes, with and without distances."""
+    import numpy as np
+
+    import granularsap
+
+    pos, radii, clumps, boxes = _inputs()
+    pbcs = [None, None, None, (True, True, False)]
+    for nt in _threads():
+        for path in _paths():
+            for box, pbc in zip(boxes, pbcs, strict=True):
+                for q in ("P", "Pd"):
+                    if "cutoff" in modes:
+                        granularsap.NeighborSearch(0.6, quantities=q, n_threads=nt,
+                                                   path=path).update(pos, box, pbc=pbc)
+                    if "spheres" in modes:
+                        granularsap.ContactSearch(skin=0.05, quantities=q, n_threads=nt,
+                                                  path=path).update(pos, radii, box, pbc=pbc)
+                if "clumps" in modes:
+                    granularsap.ContactSearch(skin=0.05, quantities="P", n_threads=nt,
+                                              path=path).update(pos, radii, box, pbc=pbc,
+                                                                clump_ids=clumps)
+            # a range of exactly half the cell (two images of a pair tie: one is kept)
+            granularsap.NeighborSearch(2.0, quantities="Pd", n_threads=nt,
+                                       path=path).update(pos, boxes[1])
+    from .io.hdf5 import pair_difference
+
+    a = np.array([[1, 2], [3, 4]], np.int64)
+    pair_difference(a, a[:1])
+
+
+def _warm_search():
+    """The stateful searches beyond the one-shot answers: a Verlet list kept and
+    rebuilt, every output quantity, the CSR layout, every periodic image."""
+    import numpy as np
+
+    import granularsap
+
+    pos, radii, clumps, boxes = _inputs()
+    rng = np.random.default_rng(1)
+    for nt in _threads():
+        for path in _paths():
+            for box in boxes:
+                for margin in (0.0, 0.2):
+                    searches = [
+                        (granularsap.NeighborSearch(0.6, rebuild_margin=margin,
+                                                    quantities="PdDS", n_threads=nt,
+                                                    path=path), False),
+                        (granularsap.ContactSearch(skin=0.05, rebuild_margin=margin,
+                                                   quantities="ijdDS", n_threads=nt,
+                                                   path=path), True),
+                        (granularsap.NeighborSearch(0.6, rebuild_margin=margin, layout="csr",
+                                                    quantities="Pd", include_cutoff=False,
+                                                    n_threads=nt, path=path), False),
+                    ]
+                    for search, spheres in searches:
+                        x = pos.copy()
+                        # first frame, a small move (the list is kept), a large one
+                        for step in (0.0, 0.01, 0.5):
+                            x = x + rng.normal(0.0, step, x.shape) if step else x
+                            if spheres:
+                                search.update(x, radii, box, clump_ids=clumps)
+                            else:
+                                search.update(x, box)
+        for box in boxes[1:3]:
+            for q in ("ijdDS", "PdD"):
+                granularsap.NeighborSearch(2.5, periodic_images="all", quantities=q,
+                                           n_threads=nt).update(pos, box)
+                granularsap.ContactSearch(skin=0.3, periodic_images="all", quantities=q,
+                                          n_threads=nt).update(pos, radii, box)
+
+
+def _warm_boxes():
+    import granularsap
+
+    pos, radii, _, _ = _inputs()
+    lower, upper = pos - radii[:, None], pos + radii[:, None]
+    for nt in _threads():
+        granularsap.box_overlaps(lower, upper, n_threads=nt)
+        for path in ("sequential", "parallel", "columns"):
+            sap = granularsap.SweepAndPrune(path=path, n_threads=nt)
+            sap.update(lower, upper)
+            sap.update(lower + 0.01, upper + 0.01)  # temporal coherence: the kept order
+
+
+def _warm_dropins():
+    import numpy as np
+
+    pos, radii, _, boxes = _inputs()
+    x32 = pos.astype(np.float32)
+    for nt in _threads():
+        try:
+            from . import mda
+        except ImportError:  # pragma: no cover - numpy-only install
+            mda = None
+        if mda is not None:
+            for box in (None, np.array([4, 4, 4, 90, 90, 90], np.float32),
+                        np.array([4, 4, 4, 80, 95, 85], np.float32)):
+                for cut in (0.6, 3.0):  # below and beyond half the cell
+                    for dist in (True, False):
+                        mda.self_capped_distance(x32, cut, box=box, return_distances=dist,
+                                                 n_threads=nt)
+                        mda.capped_distance(x32[:20], x32, cut, min_cutoff=0.1, box=box,
+                                            return_distances=dist, n_threads=nt)
+            ns = mda.FastNS(0.8, x32, np.array([4, 4, 4, 90, 90, 90], np.float32),
+                            n_threads=nt)
+            ns.self_search()
+            ns.search(x32[:10])
+        try:
+            from . import ase as gase
+            from .ase_neighborlist import NeighborList
+        except ImportError:  # pragma: no cover
+            continue
+        cell = np.diag([4.0, 4.0, 4.0])
+        numbers = np.arange(len(pos)) % 3 + 1
+        for pbc in ((True, True, True), (True, True, False), (False, False, False)):
+            for cut in (0.6, 3.0, {(1, 1): 0.5, (1, 2): 0.7}):
+                gase.primitive_neighbor_list("ijdDS", pbc, cell, pos, cut, numbers=numbers,
+                                             n_threads=nt)
+        try:
+            import ase
+        except ImportError:  # pragma: no cover
+            continue
+        atoms = ase.Atoms(numbers=numbers, positions=pos, cell=cell, pbc=True)
+        nl = NeighborList(radii, n_threads=nt)
+        nl.update(atoms)
+        atoms.positions += 0.01
+        nl.update(atoms)
+        nl.get_neighbors(0)
+
+
+_WARM = {"contacts": _warm_contacts, "search": _warm_search, "boxes": _warm_boxes,
+         "dropins": _warm_dropins}
+
+
+def resolve(names):
+    """Group names for ``names`` (groups or older function names), in :data:`GROUPS` order."""
+    chosen = set()
+    for name in names:
+        group = ALIASES.get(name, name)
+        if group not in GROUPS:
+            raise ValueError(f"unknown group {name!r}; choose from {', '.join(GROUPS)} "
+                             f"(or {', '.join(ALIASES)}, part of "
+                             f"{' and '.join(sorted(set(ALIASES.values())))})")
+        chosen.add(group)
+    return [g for g in GROUPS if g in chosen]
+
+
+def warmup(groups=tuple(GROUPS), *, progress=None):
+    """Compile (or load from the cache) the kernels of the given groups.
 
     Parameters
     ----------
-    functions : sequence of str
-        Names from :data:`FUNCTIONS`.
+    groups : sequence of str
+        Names from :data:`GROUPS` (or the older function names of
+        :data:`ALIASES`, which stand for their group).
+    progress : callable, optional
+        Called after each group with ``(group, seconds, compiled)``.
 
     Returns
     -------
     dict
-        ``seconds`` spent and ``compiled``, the number of kernel compilations
-        (0 when everything came from the cache).
+        ``seconds`` spent, ``compiled`` (the number of kernel compilations, 0
+        when everything came from the cache), ``groups`` (those run) and
+        ``per_group`` (``{group: (seconds, compiled)}``).
+
+    Examples
+    --------
+    >>> out = warmup(["boxes"])
+    >>> out["groups"], out["compiled"] >= 0
+    (['boxes'], True)
     """
-    import granularsap
-
-    unknown = [f for f in functions if f not in FUNCTIONS]
-    if unknown:
-        raise ValueError(f"unknown function {unknown[0]!r}; choose from {', '.join(FUNCTIONS)}")
-    import numba
-
-    pos, radii, clumps, boxes = _inputs()
-    # one thread runs the serial kernels; more threads the parallel ones, which
-    # large inputs take
-    threads = (1, 2) if numba.config.NUMBA_NUM_THREADS >= 2 else (1,)
+    groups = resolve(groups)
     t0 = time.perf_counter()
+    per_group = {}
     with compile_notice(quiet=True) as counter:
-        for name, nt in ((name, nt) for name in functions for nt in threads):
-            if name == "box_overlaps":
-                lower, upper = pos - radii[:, None], pos + radii[:, None]
-                granularsap.box_overlaps(lower, upper, n_threads=nt)
-                granularsap.SweepAndPrune(path="columns", n_threads=nt).update(lower, upper)
-                continue
-            for box in boxes:
-                if name == "sphere_contacts":
-                    for dist in (False, True):
-                        granularsap.sphere_contacts(pos, radii, skin=0.05, box=box,
-                                                    return_distances=dist, n_threads=nt)
-                elif name == "neighbor_pairs":
-                    for dist in (False, True):
-                        granularsap.neighbor_pairs(pos, 0.6, box=box, return_distances=dist,
-                                                   n_threads=nt)
-                else:
-                    granularsap.clump_contacts(pos, radii, clumps, skin=0.05, box=box,
-                                               n_threads=nt)
-    return {"seconds": time.perf_counter() - t0, "compiled": counter.count}
+        for group in groups:
+            t1, c1 = time.perf_counter(), counter.count
+            _WARM[group]()
+            per_group[group] = (time.perf_counter() - t1, counter.count - c1)
+            if progress is not None:
+                progress(group, *per_group[group])
+    return {"seconds": time.perf_counter() - t0, "compiled": counter.count,
+            "groups": groups, "per_group": per_group}
 
 
 def cache_location():
@@ -183,8 +401,9 @@ def cache_location():
 
 
 def add_arguments(parser):
-    parser.add_argument("--only", default=",".join(FUNCTIONS), metavar="NAME[,NAME]",
-                        help=f"functions to compile (default all: {', '.join(FUNCTIONS)})")
+    parser.add_argument("--only", default=",".join(GROUPS), metavar="GROUP[,GROUP]",
+                        help=f"groups to compile (default all: {', '.join(GROUPS)}; "
+                             "contacts is what `granularsap contacts` and `info` use)")
     parser.add_argument("-q", "--quiet", action="store_true", help="print nothing")
 
 
@@ -193,12 +412,28 @@ def run(args) -> int:
 
     names = [n.strip() for n in args.only.split(",") if n.strip()]
     try:
-        out = warmup(names)
+        groups = resolve(names)
     except ValueError as exc:
         raise CLIError(str(exc)) from None
+    if not groups:
+        raise CLIError(f"--only names no group; choose from {', '.join(GROUPS)}")
+
+    def progress(group, seconds, compiled):
+        if not args.quiet:
+            k = groups.index(group) + 1
+            what = (f"compiled {compiled} kernel signatures" if compiled
+                    else "every kernel came from the cache")
+            print(f"granularsap warmup: [{k}/{len(groups)}] {group} ready in {seconds:.1f} s "
+                  f"({what}): {GROUPS[group]}", file=sys.stderr, flush=True)
+
+    if not args.quiet:
+        print(f"granularsap warmup: compiling {', '.join(groups)} into {cache_location()} "
+              "(a minute or two on a cold cache, a few seconds on a warm one)",
+              file=sys.stderr, flush=True)
+    out = warmup(groups, progress=progress)
     if not args.quiet:
         what = (f"compiled {out['compiled']} kernel signatures" if out["compiled"]
                 else "nothing to compile: every kernel came from the cache")
-        print(f"granularsap warmup: {', '.join(names)} ready in {out['seconds']:.1f} s "
+        print(f"granularsap warmup: {', '.join(groups)} ready in {out['seconds']:.1f} s "
               f"({what}); cache: {cache_location()}")
     return 0
