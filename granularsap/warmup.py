@@ -335,9 +335,10 @@ def resolve(names):
     for name in names:
         group = ALIASES.get(name, name)
         if group not in GROUPS:
+            older = "; ".join(f"{', '.join(a for a in ALIASES if ALIASES[a] == g)} for {g}"
+                              for g in GROUPS if g in ALIASES.values())
             raise ValueError(f"unknown group {name!r}; choose from {', '.join(GROUPS)} "
-                             f"(or {', '.join(ALIASES)}, part of "
-                             f"{' and '.join(sorted(set(ALIASES.values())))})")
+                             f"(or the older names {older})")
         chosen.add(group)
     return [g for g in GROUPS if g in chosen]
 

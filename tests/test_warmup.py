@@ -75,8 +75,8 @@ class TestWarmupCommand:
         assert main(["warmup", "--only", "kd_tree"]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert err == ["granularsap warmup: error: unknown group 'kd_tree'; choose from "
-                       "contacts, search, boxes, dropins (or sphere_contacts, neighbor_pairs, "
-                       "clump_contacts, box_overlaps, part of boxes and contacts)"]
+                       "contacts, search, boxes, dropins (or the older names sphere_contacts, "
+                       "neighbor_pairs, clump_contacts for contacts; box_overlaps for boxes)"]
         with pytest.raises(ValueError, match="unknown group 'x'; choose from contacts, "):
             warmup(["x"])
         assert main(["warmup", "--only", ","]) == 2
