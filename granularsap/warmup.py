@@ -28,7 +28,7 @@ import sys
 import threading
 import time
 
-__all__ = ["compile_notice", "warmup"]
+__all__ = ["GROUPS", "compile_notice", "kernel_signatures", "warm_contacts", "warmup"]
 
 #: what ``granularsap warmup --help`` says
 DESCRIPTION = """\
@@ -193,9 +193,23 @@ def _paths():
     return ("columns", "sweep")
 
 
-def _warm_contacts(modes=("spheres", "cutoff", "clumps")):
-    """What `granularsap contacts` runs per frame (its FrameSearch, births and deaths),
-    and so the one-shot functions, in the given modes, with and without distances."""
+def warm_contacts(modes=("spheres", "cutoff", "clumps")):
+    """Compile what ``granularsap contacts`` runs per frame in the given modes.
+
+    The ``contacts`` group of :func:`warmup`, for some modes only (what
+    ``granularsap contacts --workers N`` compiles before starting its workers):
+    its searches with and without distances, on both candidate paths, serial and
+    parallel, open, periodic, triclinic and partly periodic, which the one-shot
+    functions share.
+
+    Parameters
+    ----------
+    modes : sequence of {"spheres", "cutoff", "clumps"}
+
+    Examples
+    --------
+    >>> warm_contacts(modes=("cutoff",))
+    """
     import numpy as np
 
     import granularsap
@@ -325,7 +339,7 @@ def _warm_dropins():
         nl.get_neighbors(0)
 
 
-_WARM = {"contacts": _warm_contacts, "search": _warm_search, "boxes": _warm_boxes,
+_WARM = {"contacts": warm_contacts, "search": _warm_search, "boxes": _warm_boxes,
          "dropins": _warm_dropins}
 
 

@@ -172,14 +172,14 @@ def run(args) -> int:
         # shown on a terminal only, and only for runs longer than half a second
         bar = tqdm(total=None, unit="frame", desc="contacts", file=sys.stderr,
                    dynamic_ncols=True, mininterval=0.5, delay=0.5, disable=None)
-    from ..warmup import _warm_contacts, compile_notice
+    from ..warmup import compile_notice, warm_contacts
 
     try:
         with compile_notice(quiet=args.quiet):
             if args.workers is not None:
                 # compile once here rather than in every worker at the same time; the
                 # workers then load the kernels from the disk cache
-                _warm_contacts(modes=(params.mode,))
+                warm_contacts(modes=(params.mode,))
             summary = compute_contacts(args.trajectory, args.output, params,
                                        format=args.format, topology=args.topology,
                                        frames=args.frames, resume=not args.no_resume,
