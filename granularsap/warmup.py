@@ -145,13 +145,12 @@ def kernel_signatures():
 
     from numba.core.dispatcher import Dispatcher
 
-    from ._numba import _ParallelKernel
-
     found = set()
 
     def visit(v, depth=0):
-        if isinstance(v, _ParallelKernel):
-            v = v._dispatcher
+        inner = getattr(type(v), "__slots__", None) and getattr(v, "_dispatcher", None)
+        if isinstance(inner, Dispatcher):  # a parallel kernel's wrapper (_numba.pjit)
+            v = inner
         if isinstance(v, Dispatcher):
             if _ours(v):
                 name = f"{v.py_func.__module__}.{v.py_func.__qualname__}"
