@@ -39,7 +39,7 @@ command runs what each command and search runs, on tiny inputs, group by group
 (one line per group on stderr): contacts (`granularsap contacts` in every mode,
 `granularsap info`, `validate`, sphere_contacts, neighbor_pairs,
 clump_contacts), search (NeighborSearch and ContactSearch with a Verlet list,
-vectors, shifts, CSR, every image), boxes (box_overlaps, SweepAndPrune) and
+vectors, shifts, CSR, every image, contact identity), boxes (box_overlaps, SweepAndPrune) and
 dropins (granularsap.mda, granularsap.ase). --only contacts is what the quick
 start needs.
 """
@@ -49,7 +49,8 @@ GROUPS = {
     "contacts": "granularsap contacts (every mode), info and validate; sphere_contacts, "
                 "neighbor_pairs, clump_contacts",
     "search": "NeighborSearch and ContactSearch beyond those: Verlet lists (rebuild_margin), "
-              "vectors and shifts, layout='csr', periodic_images='all'",
+              "vectors and shifts, layout='csr', periodic_images='all', identity=True "
+              "(and ContactIdentity)",
     "boxes": "box_overlaps and SweepAndPrune",
     "dropins": "granularsap.mda (capped_distance, self_capped_distance, FastNS, Contacts) "
                "and granularsap.ase (neighbor_list, NeighborList)",
@@ -240,7 +241,8 @@ def warm_contacts(modes=("spheres", "cutoff", "clumps")):
 
 def _warm_search():
     """The stateful searches beyond the one-shot answers: a Verlet list kept and
-    rebuilt, every output quantity, the CSR layout, every periodic image."""
+    rebuilt, every output quantity, the CSR layout, every periodic image, contacts
+    followed across calls."""
     import numpy as np
 
     import granularsap
@@ -277,6 +279,57 @@ def _warm_search():
                                            n_threads=nt).update(pos, box)
                 granularsap.ContactSearch(skin=0.3, periodic_images="all", quantities=q,
                                           n_threads=nt).update(pos, radii, box)
+        _warm_identity(pos, radii, clumps, boxes, nt, rng)
+
+
+def _warm_identity(pos, radii, clumps, boxes, nt, rng):
+    """Contacts followed across calls (identity=True): ids dense and sparse, or rows;
+    minimum image and every image; clump pairs; ContactIdentity's keys."""
+    import numpy as np
+
+    import granularsap
+
+    n = len(pos)
+    dense = np.arange(n, dtype=np.int64) + 100
+    sparse = rng.permutation(n).astype(np.int64) * 1_000_003 + 2**40
+    for box in boxes:
+        for path in _paths():
+            for ids in (dense, sparse, None):
+                s = granularsap.ContactSearch(skin=0.05, quantities="PdD", identity=True,
+                                              n_threads=nt, path=path)
+                h = hc = None
+                for step in (0.0, 0.02):
+                    x = pos + rng.normal(0.0, step, pos.shape) if step else pos
+                    out = s.update(x, radii, box, ids=ids, clump_ids=clumps)
+                    h = np.zeros(len(out[0])) if h is None else s.carry(h, fill=-1.0)
+                    hc = (np.zeros(len(s.clump_pairs)) if hc is None
+                          else s.carry(hc, clumps=True))
+                nb = granularsap.NeighborSearch(0.6, identity=True, n_threads=nt, path=path)
+                for _ in range(2):
+                    nb.update(pos, box, ids=ids)
+        if box is not None:
+            every = granularsap.NeighborSearch(2.5, periodic_images="all", quantities="PdS",
+                                               identity=True, n_threads=nt)
+            for _ in range(2):
+                every.update(pos, box, ids=dense)
+    # identity's parallel kernels run from 50,000 pairs on (whatever the frame's size)
+    big = rng.uniform(0.0, 10.0, (20_000, 3))
+    big_ids = (np.arange(len(big), dtype=np.int64), rng.permutation(len(big)) * 1_000_003)
+    for ids in big_ids:
+        s = granularsap.ContactSearch(skin=0.3, identity=True, n_threads=nt)
+        nb = granularsap.NeighborSearch(0.6, periodic_images="all", identity=True,
+                                        n_threads=nt)
+        for _ in range(2):
+            s.update(big, 0.15, [10, 10, 10, 90, 90, 90], ids=ids,
+                     clump_ids=np.arange(len(big)) // 2)
+            nb.update(big, [10, 10, 10, 90, 90, 90], ids=ids)
+    from .identity import ContactIdentity
+
+    for rows in (n, 60_000):
+        keys = np.stack([np.arange(rows), np.arange(rows) % 3, np.arange(rows) % 7], axis=1)
+        track = ContactIdentity(n_threads=nt)
+        track.update(keys)
+        track.update(keys[::2])
 
 
 def _warm_boxes():

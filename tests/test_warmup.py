@@ -127,6 +127,23 @@ WORKLOADS = {
                     y, [30, 30, 30, 80, 95, 85])
         granularsap.NeighborSearch(16.0, periodic_images="all", quantities="ijdDS").update(
             x[:300], cell)
+        for ids in (np.arange(len(x)) + 7, rng.permutation(len(x)) * 1_000_003 + 2**40):
+            for n in (500, 25_000):                      # serial and parallel kernels
+                y = x[:n].copy()
+                s = granularsap.ContactSearch(skin=0.05, quantities="PdD", identity=True)
+                age = None
+                for step in range(3):
+                    y += rng.normal(0, 0.02, y.shape)
+                    pairs, d, vec = s.update(y, 0.5, cell, ids=ids[:n],
+                                             clump_ids=np.arange(n) // 2)
+                    age = np.zeros(len(pairs), int) if age is None else s.carry(age, -1) + 1
+                nb = granularsap.NeighborSearch(1.0, identity=True)
+                nb.update(y, cell, ids=ids[:n])
+                nb.update(y + 0.01, cell, ids=ids[:n])
+        from granularsap.identity import ContactIdentity
+        track = ContactIdentity()
+        track.update(np.array([[7, 0, 3], [8, 0, 3]]))
+        track.update(np.array([[8, 0, 3], [9, 1, 0]]))
     """,
     "boxes": """
         x = rng.uniform(0, 30, (25_000, 3))
