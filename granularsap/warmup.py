@@ -167,11 +167,13 @@ def kernel_signatures():
     return found
 
 
-def _inputs(seed=0):
+def _inputs(seed=0, n=64):
+    """Particles at one density (64 in a cell of side 4), radii, clumps of two, and the
+    cells: none, orthorhombic, triclinic and partly periodic."""
     import numpy as np
 
     rng = np.random.default_rng(seed)
-    n, length = 64, 4.0
+    length = 4.0 * (n / 64) ** (1 / 3)
     pos = rng.uniform(0.0, length, (n, 3))
     radii = rng.uniform(0.1, 0.3, n)
     clumps = np.repeat(np.arange(n // 2, dtype=np.int64), 2)
@@ -182,11 +184,12 @@ def _inputs(seed=0):
 
 
 def _threads():
+    """(threads, particles): one thread on a tiny frame runs the serial kernels; two
+    threads the parallel ones, which only frames with several chunks of work take (and
+    the drop-ins and identity only from some 65,536 pairs on), hence 6,000 particles."""
     import numba
 
-    # one thread runs the serial kernels; more threads the parallel ones, which
-    # large inputs take
-    return (1, 2) if numba.config.NUMBA_NUM_THREADS >= 2 else (1,)
+    return ((1, 64), (2, 6000)) if numba.config.NUMBA_NUM_THREADS >= 2 else ((1, 64),)
 
 
 def _paths():
@@ -214,9 +217,10 @@ def warm_contacts(modes=("spheres", "cutoff", "clumps")):
 
     import granularsap
 
-    pos, radii, clumps, boxes = _inputs()
     pbcs = [None, None, None, (True, True, False)]
-    for nt in _threads():
+    for nt, n in _threads():
+        pos, radii, clumps, boxes = _inputs(n=n)
+        half = 0.5 * boxes[1][0]
         for path in _paths():
             for box, pbc in zip(boxes, pbcs, strict=True):
                 for q in ("P", "Pd"):
@@ -231,8 +235,8 @@ def warm_contacts(modes=("spheres", "cutoff", "clumps")):
                                               path=path).update(pos, radii, box, pbc=pbc,
                                                                 clump_ids=clumps)
             # a range of exactly half the cell (two images of a pair tie: one is kept)
-            granularsap.NeighborSearch(2.0, quantities="Pd", n_threads=nt,
-                                       path=path).update(pos, boxes[1])
+            granularsap.NeighborSearch(half if n < 1000 else 2.0, quantities="Pd",
+                                       n_threads=nt, path=path).update(pos, boxes[1])
     from .io.hdf5 import pair_difference
 
     a = np.array([[1, 2], [3, 4]], np.int64)
@@ -247,9 +251,9 @@ def _warm_search():
 
     import granularsap
 
-    pos, radii, clumps, boxes = _inputs()
     rng = np.random.default_rng(1)
-    for nt in _threads():
+    for nt, n in _threads():
+        pos, radii, clumps, boxes = _inputs(n=n)
         for path in _paths():
             for box in boxes:
                 for margin in (0.0, 0.2):
@@ -335,9 +339,10 @@ def _warm_identity(pos, radii, clumps, boxes, nt, rng):
 def _warm_boxes():
     import granularsap
 
-    pos, radii, _, _ = _inputs()
-    lower, upper = pos - radii[:, None], pos + radii[:, None]
-    for nt in _threads():
+    for nt, n in _threads():
+        # boxes take their parallel kernels from 32,768 boxes on
+        pos, radii, _, _ = _inputs(n=n if n < 1000 else 40_000)
+        lower, upper = pos - radii[:, None], pos + radii[:, None]
         granularsap.box_overlaps(lower, upper, n_threads=nt)
         for path in ("sequential", "parallel", "columns"):
             sap = granularsap.SweepAndPrune(path=path, n_threads=nt)
@@ -348,23 +353,25 @@ def _warm_boxes():
 def _warm_dropins():
     import numpy as np
 
-    pos, radii, _, boxes = _inputs()
-    x32 = pos.astype(np.float32)
-    for nt in _threads():
+    for nt, n in _threads():
+        pos, radii, _, _ = _inputs(n=n)
+        side = 4.0 * (n / 64) ** (1 / 3)
+        x32 = pos.astype(np.float32)
         try:
             from . import mda
         except ImportError:  # pragma: no cover - numpy-only install
             mda = None
         if mda is not None:
-            for box in (None, np.array([4, 4, 4, 90, 90, 90], np.float32),
-                        np.array([4, 4, 4, 80, 95, 85], np.float32)):
-                for cut in (0.6, 3.0):  # below and beyond half the cell
+            for box in (None, np.array([side, side, side, 90, 90, 90], np.float32),
+                        np.array([side, side, side, 80, 95, 85], np.float32)):
+                # below half the cell (many pairs on the large frame), beyond it
+                for cut in (1.5, 0.75 * side):
                     for dist in (True, False):
                         mda.self_capped_distance(x32, cut, box=box, return_distances=dist,
                                                  n_threads=nt)
                         mda.capped_distance(x32[:20], x32, cut, min_cutoff=0.1, box=box,
                                             return_distances=dist, n_threads=nt)
-            ns = mda.FastNS(0.8, x32, np.array([4, 4, 4, 90, 90, 90], np.float32),
+            ns = mda.FastNS(0.8, x32, np.array([side, side, side, 90, 90, 90], np.float32),
                             n_threads=nt)
             ns.self_search()
             ns.search(x32[:10])
@@ -373,10 +380,10 @@ def _warm_dropins():
             from .ase_neighborlist import NeighborList
         except ImportError:  # pragma: no cover
             continue
-        cell = np.diag([4.0, 4.0, 4.0])
+        cell = np.diag([side, side, side])
         numbers = np.arange(len(pos)) % 3 + 1
         for pbc in ((True, True, True), (True, True, False), (False, False, False)):
-            for cut in (0.6, 3.0, {(1, 1): 0.5, (1, 2): 0.7}):
+            for cut in (1.5, 0.75 * side, {(1, 1): 0.5, (1, 2): 0.7}):
                 gase.primitive_neighbor_list("ijdDS", pbc, cell, pos, cut, numbers=numbers,
                                              n_threads=nt)
         try:

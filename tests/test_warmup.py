@@ -146,7 +146,7 @@ WORKLOADS = {
         track.update(np.array([[8, 0, 3], [9, 1, 0]]))
     """,
     "boxes": """
-        x = rng.uniform(0, 30, (25_000, 3))
+        x = rng.uniform(0, 30, (40_000, 3))        # above the count that takes parallel kernels
         r = rng.uniform(0.1, 0.4, (len(x), 1))
         granularsap.box_overlaps(x - r, x + r)
         granularsap.box_overlaps(x[:500] - r[:500], x[:500] + r[:500])
