@@ -52,7 +52,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _silence_stdout():
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # no real stdout (captured, closed)
+        pass
+
+
 def main(argv=None) -> int:
+    try:
+        return _main(argv)
+    except BrokenPipeError:
+        # the reader went away (`granularsap info f.h5 | head -1`): stop quietly, as Unix
+        # tools do, and keep Python from complaining when it flushes stdout at exit
+        _silence_stdout()
+        return 141  # 128 + SIGPIPE, what a shell reports for a tool SIGPIPE ended
+
+
+def _main(argv):
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
@@ -60,6 +81,8 @@ def main(argv=None) -> int:
         return 2
     try:
         return int(args._run(args) or 0)
+    except BrokenPipeError:
+        raise  # see main
     except KeyboardInterrupt:
         print("granularsap: interrupted", file=sys.stderr)
         return 130

@@ -43,8 +43,19 @@ class _SpawnMultiprocessing(BackendMultiprocessing):
     def apply(self, func, computations):
         import multiprocessing
 
-        with multiprocessing.get_context("spawn").Pool(processes=self.n_workers) as pool:
-            return pool.map(func, computations)
+        # close and join (not terminate, which `with Pool()` does): a terminated pool's
+        # worker processes still hold its semaphores, and the resource tracker reports
+        # them at exit as leaked
+        pool = multiprocessing.get_context("spawn").Pool(processes=self.n_workers)
+        try:
+            out = pool.map(func, computations)
+            pool.close()
+        except BaseException:
+            pool.terminate()
+            raise
+        finally:
+            pool.join()
+        return out
 
 
 class Contacts(AnalysisBase):

@@ -1347,4 +1347,10 @@ def as_labels(clump_ids, n, name="clump_ids"):
             raise TypeError(f"{name} must be integers, got dtype {ids.dtype}")
     if ids.shape != (n,):
         raise ValueError(f"{name} must have shape ({n},), got {ids.shape}")
+    if ids.dtype.kind == "u" and ids.dtype.itemsize == 8 and ids.size:
+        big = int(np.argmax(ids))
+        if ids[big] > np.iinfo(np.int64).max:  # would come back as a negative label
+            raise ValueError(f"{name} must be below 2**63 (labels are int64), got "
+                             f"{int(ids[big])} at index {big}; renumber the clumps, e.g. with "
+                             f"np.unique({name}, return_inverse=True)[1]")
     return np.ascontiguousarray(ids, dtype=np.int64)

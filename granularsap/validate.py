@@ -28,6 +28,9 @@ import time
 
 #: references this command knows
 REFERENCES = ("lammps", "mdanalysis")
+#: the cutoff of a trajectory without radii when none is given: the usual
+#: Lennard-Jones cutoff, 2.5 sigma (``pair_style lj/cut 2.5``, as in data/lj.in)
+DEFAULT_CUTOFF = 2.5
 
 
 def _frames(text):
@@ -77,7 +80,8 @@ def add_arguments(parser):
                         help="references to compare with: lammps, mdanalysis (default both)")
     what = parser.add_mutually_exclusive_group()
     what.add_argument("--cutoff", type=_nonneg, metavar="C",
-                      help="neighbour pairs with d <= C")
+                      help="neighbour pairs with d <= C (default: sphere contacts from the "
+                           f"file's radius column, else C = {DEFAULT_CUTOFF:g})")
     what.add_argument("--radius-column", metavar="NAME",
                       help="sphere contacts d <= r_i + r_j + skin, radii from this column "
                            "(default when the file has a radius column)")
@@ -131,18 +135,18 @@ class _Setup:
         self.cutoff = args.cutoff
         self.radius_column = args.radius_column
         self.skin = args.skin
+        self.defaulted = False
         if self.cutoff is None and self.radius_column is None:
             if first_frame.radius is not None or "radius" in first_frame.columns:
                 self.radius_column = "radius"
             else:
-                from .cli import CLIError
-
-                raise CLIError("give --cutoff C or --radius-column NAME "
-                               f"({first_frame.source} has no radius column)")
+                self.cutoff, self.defaulted = DEFAULT_CUTOFF, True
 
     def describe(self):
         if self.cutoff is not None:
-            return f"neighbour pairs d <= {self.cutoff:g}"
+            why = (f" (no radius column and no --cutoff: the default {DEFAULT_CUTOFF:g}, "
+                   "Lennard-Jones's usual 2.5 sigma)" if self.defaulted else "")
+            return f"neighbour pairs d <= {self.cutoff:g}{why}"
         return f"sphere contacts d <= r_i + r_j + {self.skin:g} (radii: {self.radius_column})"
 
     def radii(self, frame):

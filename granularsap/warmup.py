@@ -3,13 +3,15 @@
 granularsap's kernels are compiled by numba on first use and cached on disk
 (``cache=True``): the first ``granularsap contacts`` on a fresh install spends
 most of its time compiling, every later run loads the compiled code in a
-fraction of a second.  ``granularsap warmup`` calls the public functions the
-command line uses (:func:`granularsap.sphere_contacts`,
-:func:`~granularsap.neighbor_pairs`, :func:`~granularsap.clump_contacts`,
-:func:`~granularsap.box_overlaps`, and the boxes' column path) on tiny inputs,
-open and periodic, with one thread and with two (the serial kernels small
-inputs take and the parallel ones large inputs take), so that the cache is
-filled before the first real run (useful in a container image or before
+fraction of a second.  ``granularsap warmup`` runs, on tiny inputs, what each
+command and search runs, group by group (:data:`GROUPS`): the searches of
+``granularsap contacts`` in every mode and the one-shot functions, on both
+candidate paths (the column sweep and the paper's Sweep and Prune, either of
+which ``path="auto"`` may take), with one thread and with two (the serial
+kernels small inputs take and the parallel ones large inputs take), open,
+periodic, triclinic and partly periodic; the stateful searches' Verlet lists
+and other outputs; the boxes; the MDAnalysis and ASE drop-ins.  So the cache
+is filled before the first real run (useful in a container image or before
 starting many worker processes).
 
 :func:`compile_notice` is how the command line notices a cold cache: it
@@ -26,23 +28,42 @@ import sys
 import threading
 import time
 
-__all__ = ["compile_notice", "warmup"]
+__all__ = ["GROUPS", "compile_notice", "kernel_signatures", "warm_contacts", "warmup"]
 
 #: what ``granularsap warmup --help`` says
 DESCRIPTION = """\
 Compile granularsap's numba kernels now, so that the first real run does not.
 Kernels are compiled on first use and cached on disk (numba's cache: the
-__pycache__ folders of the installed package, or NUMBA_CACHE_DIR); a cold
-cache costs the first `granularsap contacts` about 20 s. This command calls
-sphere_contacts, neighbor_pairs, clump_contacts and box_overlaps on tiny open
-and periodic inputs; --only sphere_contacts,neighbor_pairs,clump_contacts
-compiles just what `granularsap contacts` needs.
+__pycache__ folders of the installed package, or NUMBA_CACHE_DIR). This
+command runs what each command and search runs, on tiny inputs, group by group
+(one line per group on stderr): contacts (`granularsap contacts` in every mode,
+`granularsap info`, `validate`, sphere_contacts, neighbor_pairs,
+clump_contacts), search (NeighborSearch and ContactSearch with a Verlet list,
+vectors, shifts, CSR, every image, contact identity), boxes (box_overlaps, SweepAndPrune) and
+dropins (granularsap.mda, granularsap.ase). --only contacts is what the quick
+start needs.
 """
 
-#: the public functions warmup compiles, in the order it calls them
+#: the groups warmup compiles, in the order it runs them, with what each covers
+GROUPS = {
+    "contacts": "granularsap contacts (every mode), info and validate; sphere_contacts, "
+                "neighbor_pairs, clump_contacts",
+    "search": "NeighborSearch and ContactSearch beyond those: Verlet lists (rebuild_margin), "
+              "vectors and shifts, layout='csr', periodic_images='all', identity=True "
+              "(and ContactIdentity)",
+    "boxes": "box_overlaps and SweepAndPrune",
+    "dropins": "granularsap.mda (capped_distance, self_capped_distance, FastNS, Contacts) "
+               "and granularsap.ase (neighbor_list, NeighborList)",
+}
+
+#: older names accepted by ``--only``: the group that compiles what they use
+ALIASES = {"sphere_contacts": "contacts", "neighbor_pairs": "contacts",
+           "clump_contacts": "contacts", "box_overlaps": "boxes"}
+
+#: kept for callers of the first version: the public functions of the contacts group
 FUNCTIONS = ("sphere_contacts", "neighbor_pairs", "clump_contacts", "box_overlaps")
 
-NOTICE = ("granularsap: compiling numba kernels on first use (once, about 20 s; they are "
+NOTICE = ("granularsap: compiling numba kernels on first use (once, about 40 s; they are "
           "cached for the next runs; `granularsap warmup` compiles them ahead)")
 
 
@@ -88,6 +109,14 @@ def compile_notice(*, quiet=False, stream=None):
     Yields the counter; ``.count`` is the number of kernel compilations seen.
     Nothing is printed when every kernel comes from the cache, or with
     ``quiet=True``.
+
+    Examples
+    --------
+    >>> import granularsap
+    >>> with compile_notice(quiet=True) as counter:
+    ...     _ = granularsap.neighbor_pairs([[0.0, 0, 0], [1.0, 0, 0]], 1.5)
+    >>> counter.count >= 0
+    True
     """
     from numba.core import event
 
@@ -100,11 +129,51 @@ def compile_notice(*, quiet=False, stream=None):
         yield counter
 
 
-def _inputs(seed=0):
+def kernel_signatures():
+    """Every compiled (or cache-loaded) signature of granularsap's kernels in this process.
+
+    A set of ``(module.qualname, signature)``; what a workload adds to it is what
+    it needed beyond what ran before (for tests of :func:`warmup`).
+
+    Examples
+    --------
+    >>> import granularsap
+    >>> _ = granularsap.neighbor_pairs([[0.0, 0, 0], [1.0, 0, 0]], 1.5)
+    >>> any(name.startswith("granularsap.kernels.") for name, _ in kernel_signatures())
+    True
+    """
+    import types
+
+    from numba.core.dispatcher import Dispatcher
+
+    found = set()
+
+    def visit(v, depth=0):
+        inner = getattr(type(v), "__slots__", None) and getattr(v, "_dispatcher", None)
+        if isinstance(inner, Dispatcher):  # a parallel kernel's wrapper (_numba.pjit)
+            v = inner
+        if isinstance(v, Dispatcher):
+            if _ours(v):
+                name = f"{v.py_func.__module__}.{v.py_func.__qualname__}"
+                found.update((name, str(sig)) for sig in v.signatures)
+        elif isinstance(v, types.SimpleNamespace) and depth == 0:
+            for w in vars(v).values():
+                visit(w, 1)
+
+    for name, mod in list(sys.modules.items()):
+        if mod is not None and name.split(".")[0] in ("granularsap", "lammps_bridge"):
+            for v in list(vars(mod).values()):
+                visit(v)
+    return found
+
+
+def _inputs(seed=0, n=64):
+    """Particles at one density (64 in a cell of side 4), radii, clumps of two, and the
+    cells: none, orthorhombic, triclinic and partly periodic."""
     import numpy as np
 
     rng = np.random.default_rng(seed)
-    n, length = 64, 4.0
+    length = 4.0 * (n / 64) ** (1 / 3)
     pos = rng.uniform(0.0, length, (n, 3))
     radii = rng.uniform(0.1, 0.3, n)
     clumps = np.repeat(np.arange(n // 2, dtype=np.int64), 2)
@@ -114,52 +183,275 @@ def _inputs(seed=0):
     return pos, radii, clumps, boxes
 
 
-def warmup(functions=FUNCTIONS):
-    """Compile (or load from the cache) the kernels of the given public functions.
+def _threads():
+    """(threads, particles): one thread on a tiny frame runs the serial kernels; two
+    threads the parallel ones, which only frames with several chunks of work take (and
+    the drop-ins and identity only from some 65,536 pairs on), hence 6,000 particles."""
+    import numba
+
+    return ((1, 64), (2, 6000)) if numba.config.NUMBA_NUM_THREADS >= 2 else ((1, 64),)
+
+
+def _paths():
+    return ("columns", "sweep")
+
+
+def warm_contacts(modes=("spheres", "cutoff", "clumps")):
+    """Compile what ``granularsap contacts`` runs per frame in the given modes.
+
+    The ``contacts`` group of :func:`warmup`, for some modes only (what
+    ``granularsap contacts --workers N`` compiles before starting its workers):
+    its searches with and without distances, on both candidate paths, serial and
+    parallel, open, periodic, triclinic and partly periodic, which the one-shot
+    functions share.
 
     Parameters
     ----------
-    functions : sequence of str
-        Names from :data:`FUNCTIONS`.
+    modes : sequence of {"spheres", "cutoff", "clumps"}
+
+    Examples
+    --------
+    >>> warm_contacts(modes=("cutoff",))
+    """
+    import numpy as np
+
+    import granularsap
+
+    pbcs = [None, None, None, (True, True, False)]
+    for nt, n in _threads():
+        pos, radii, clumps, boxes = _inputs(n=n)
+        half = 0.5 * boxes[1][0]
+        for path in _paths():
+            for box, pbc in zip(boxes, pbcs, strict=True):
+                for q in ("P", "Pd"):
+                    if "cutoff" in modes:
+                        granularsap.NeighborSearch(0.6, quantities=q, n_threads=nt,
+                                                   path=path).update(pos, box, pbc=pbc)
+                    if "spheres" in modes:
+                        granularsap.ContactSearch(skin=0.05, quantities=q, n_threads=nt,
+                                                  path=path).update(pos, radii, box, pbc=pbc)
+                if "clumps" in modes:
+                    granularsap.ContactSearch(skin=0.05, quantities="P", n_threads=nt,
+                                              path=path).update(pos, radii, box, pbc=pbc,
+                                                                clump_ids=clumps)
+            # a range of exactly half the cell (two images of a pair tie: one is kept)
+            granularsap.NeighborSearch(half if n < 1000 else 2.0, quantities="Pd",
+                                       n_threads=nt, path=path).update(pos, boxes[1])
+    from .io.hdf5 import pair_difference
+
+    a = np.array([[1, 2], [3, 4]], np.int64)
+    pair_difference(a, a[:1])
+
+
+def _warm_search():
+    """The stateful searches beyond the one-shot answers: a Verlet list kept and
+    rebuilt, every output quantity, the CSR layout, every periodic image, contacts
+    followed across calls."""
+    import numpy as np
+
+    import granularsap
+
+    rng = np.random.default_rng(1)
+    for nt, n in _threads():
+        pos, radii, clumps, boxes = _inputs(n=n)
+        for path in _paths():
+            for box in boxes:
+                for margin in (0.0, 0.2):
+                    searches = [
+                        (granularsap.NeighborSearch(0.6, rebuild_margin=margin,
+                                                    quantities="PdDS", n_threads=nt,
+                                                    path=path), False),
+                        (granularsap.ContactSearch(skin=0.05, rebuild_margin=margin,
+                                                   quantities="ijdDS", n_threads=nt,
+                                                   path=path), True),
+                        (granularsap.NeighborSearch(0.6, rebuild_margin=margin, layout="csr",
+                                                    quantities="Pd", include_cutoff=False,
+                                                    n_threads=nt, path=path), False),
+                    ]
+                    for search, spheres in searches:
+                        x = pos.copy()
+                        # first frame, a small move (the list is kept), a large one
+                        for step in (0.0, 0.01, 0.5):
+                            x = x + rng.normal(0.0, step, x.shape) if step else x
+                            if spheres:
+                                search.update(x, radii, box, clump_ids=clumps)
+                            else:
+                                search.update(x, box)
+        for box in boxes[1:3]:
+            for q in ("ijdDS", "PdD"):
+                granularsap.NeighborSearch(2.5, periodic_images="all", quantities=q,
+                                           n_threads=nt).update(pos, box)
+                granularsap.ContactSearch(skin=0.3, periodic_images="all", quantities=q,
+                                          n_threads=nt).update(pos, radii, box)
+        _warm_identity(pos, radii, clumps, boxes, nt, rng)
+
+
+def _warm_identity(pos, radii, clumps, boxes, nt, rng):
+    """Contacts followed across calls (identity=True): ids dense and sparse, or rows;
+    minimum image and every image; clump pairs; ContactIdentity's keys."""
+    import numpy as np
+
+    import granularsap
+
+    n = len(pos)
+    dense = np.arange(n, dtype=np.int64) + 100
+    sparse = rng.permutation(n).astype(np.int64) * 1_000_003 + 2**40
+    for box in boxes:
+        for path in _paths():
+            for ids in (dense, sparse, None):
+                s = granularsap.ContactSearch(skin=0.05, quantities="PdD", identity=True,
+                                              n_threads=nt, path=path)
+                h = hc = None
+                for step in (0.0, 0.02):
+                    x = pos + rng.normal(0.0, step, pos.shape) if step else pos
+                    out = s.update(x, radii, box, ids=ids, clump_ids=clumps)
+                    h = np.zeros(len(out[0])) if h is None else s.carry(h, fill=-1.0)
+                    hc = (np.zeros(len(s.clump_pairs)) if hc is None
+                          else s.carry(hc, clumps=True))
+                nb = granularsap.NeighborSearch(0.6, identity=True, n_threads=nt, path=path)
+                for _ in range(2):
+                    nb.update(pos, box, ids=ids)
+        if box is not None:
+            every = granularsap.NeighborSearch(2.5, periodic_images="all", quantities="PdS",
+                                               identity=True, n_threads=nt)
+            for _ in range(2):
+                every.update(pos, box, ids=dense)
+    # identity's parallel kernels run from 50,000 pairs on (whatever the frame's size)
+    big = rng.uniform(0.0, 10.0, (20_000, 3))
+    big_ids = (np.arange(len(big), dtype=np.int64), rng.permutation(len(big)) * 1_000_003)
+    for ids in big_ids:
+        s = granularsap.ContactSearch(skin=0.3, identity=True, n_threads=nt)
+        nb = granularsap.NeighborSearch(0.6, periodic_images="all", identity=True,
+                                        n_threads=nt)
+        for _ in range(2):
+            s.update(big, 0.15, [10, 10, 10, 90, 90, 90], ids=ids,
+                     clump_ids=np.arange(len(big)) // 2)
+            nb.update(big, [10, 10, 10, 90, 90, 90], ids=ids)
+    from .identity import ContactIdentity
+
+    for rows in (n, 60_000):
+        keys = np.stack([np.arange(rows), np.arange(rows) % 3, np.arange(rows) % 7], axis=1)
+        track = ContactIdentity(n_threads=nt)
+        track.update(keys)
+        track.update(keys[::2])
+
+
+def _warm_boxes():
+    import granularsap
+
+    for nt, n in _threads():
+        # boxes take their parallel kernels from 32,768 boxes on
+        pos, radii, _, _ = _inputs(n=n if n < 1000 else 40_000)
+        lower, upper = pos - radii[:, None], pos + radii[:, None]
+        granularsap.box_overlaps(lower, upper, n_threads=nt)
+        for path in ("sequential", "parallel", "columns"):
+            sap = granularsap.SweepAndPrune(path=path, n_threads=nt)
+            sap.update(lower, upper)
+            sap.update(lower + 0.01, upper + 0.01)  # temporal coherence: the kept order
+
+
+def _warm_dropins():
+    import numpy as np
+
+    for nt, n in _threads():
+        pos, radii, _, _ = _inputs(n=n)
+        side = 4.0 * (n / 64) ** (1 / 3)
+        x32 = pos.astype(np.float32)
+        try:
+            from . import mda
+        except ImportError:  # pragma: no cover - numpy-only install
+            mda = None
+        if mda is not None:
+            for box in (None, np.array([side, side, side, 90, 90, 90], np.float32),
+                        np.array([side, side, side, 80, 95, 85], np.float32)):
+                # below half the cell (many pairs on the large frame), beyond it
+                for cut in (1.5, 0.75 * side):
+                    for dist in (True, False):
+                        mda.self_capped_distance(x32, cut, box=box, return_distances=dist,
+                                                 n_threads=nt)
+                        mda.capped_distance(x32[:20], x32, cut, min_cutoff=0.1, box=box,
+                                            return_distances=dist, n_threads=nt)
+            ns = mda.FastNS(0.8, x32, np.array([side, side, side, 90, 90, 90], np.float32),
+                            n_threads=nt)
+            ns.self_search()
+            ns.search(x32[:10])
+        try:
+            from . import ase as gase
+            from .ase_neighborlist import NeighborList
+        except ImportError:  # pragma: no cover
+            continue
+        cell = np.diag([side, side, side])
+        numbers = np.arange(len(pos)) % 3 + 1
+        for pbc in ((True, True, True), (True, True, False), (False, False, False)):
+            for cut in (1.5, 0.75 * side, {(1, 1): 0.5, (1, 2): 0.7}):
+                gase.primitive_neighbor_list("ijdDS", pbc, cell, pos, cut, numbers=numbers,
+                                             n_threads=nt)
+        try:
+            import ase
+        except ImportError:  # pragma: no cover
+            continue
+        atoms = ase.Atoms(numbers=numbers, positions=pos, cell=cell, pbc=True)
+        nl = NeighborList(radii, n_threads=nt)
+        nl.update(atoms)
+        atoms.positions += 0.01
+        nl.update(atoms)
+        nl.get_neighbors(0)
+
+
+_WARM = {"contacts": warm_contacts, "search": _warm_search, "boxes": _warm_boxes,
+         "dropins": _warm_dropins}
+
+
+def resolve(names):
+    """Group names for ``names`` (groups or older function names), in :data:`GROUPS` order."""
+    chosen = set()
+    for name in names:
+        group = ALIASES.get(name, name)
+        if group not in GROUPS:
+            older = "; ".join(f"{', '.join(a for a in ALIASES if ALIASES[a] == g)} for {g}"
+                              for g in GROUPS if g in ALIASES.values())
+            raise ValueError(f"unknown group {name!r}; choose from {', '.join(GROUPS)} "
+                             f"(or the older names {older})")
+        chosen.add(group)
+    return [g for g in GROUPS if g in chosen]
+
+
+def warmup(groups=tuple(GROUPS), *, progress=None):
+    """Compile (or load from the cache) the kernels of the given groups.
+
+    Parameters
+    ----------
+    groups : sequence of str
+        Names from :data:`GROUPS` (or the older function names of
+        :data:`ALIASES`, which stand for their group).
+    progress : callable, optional
+        Called after each group with ``(group, seconds, compiled)``.
 
     Returns
     -------
     dict
-        ``seconds`` spent and ``compiled``, the number of kernel compilations
-        (0 when everything came from the cache).
+        ``seconds`` spent, ``compiled`` (the number of kernel compilations, 0
+        when everything came from the cache), ``groups`` (those run) and
+        ``per_group`` (``{group: (seconds, compiled)}``).
+
+    Examples
+    --------
+    >>> out = warmup(["boxes"])
+    >>> out["groups"], out["compiled"] >= 0
+    (['boxes'], True)
     """
-    import granularsap
-
-    unknown = [f for f in functions if f not in FUNCTIONS]
-    if unknown:
-        raise ValueError(f"unknown function {unknown[0]!r}; choose from {', '.join(FUNCTIONS)}")
-    import numba
-
-    pos, radii, clumps, boxes = _inputs()
-    # one thread runs the serial kernels; more threads the parallel ones, which
-    # large inputs take
-    threads = (1, 2) if numba.config.NUMBA_NUM_THREADS >= 2 else (1,)
+    groups = resolve(groups)
     t0 = time.perf_counter()
+    per_group = {}
     with compile_notice(quiet=True) as counter:
-        for name, nt in ((name, nt) for name in functions for nt in threads):
-            if name == "box_overlaps":
-                lower, upper = pos - radii[:, None], pos + radii[:, None]
-                granularsap.box_overlaps(lower, upper, n_threads=nt)
-                granularsap.SweepAndPrune(path="columns", n_threads=nt).update(lower, upper)
-                continue
-            for box in boxes:
-                if name == "sphere_contacts":
-                    for dist in (False, True):
-                        granularsap.sphere_contacts(pos, radii, skin=0.05, box=box,
-                                                    return_distances=dist, n_threads=nt)
-                elif name == "neighbor_pairs":
-                    for dist in (False, True):
-                        granularsap.neighbor_pairs(pos, 0.6, box=box, return_distances=dist,
-                                                   n_threads=nt)
-                else:
-                    granularsap.clump_contacts(pos, radii, clumps, skin=0.05, box=box,
-                                               n_threads=nt)
-    return {"seconds": time.perf_counter() - t0, "compiled": counter.count}
+        for group in groups:
+            t1, c1 = time.perf_counter(), counter.count
+            _WARM[group]()
+            per_group[group] = (time.perf_counter() - t1, counter.count - c1)
+            if progress is not None:
+                progress(group, *per_group[group])
+    return {"seconds": time.perf_counter() - t0, "compiled": counter.count,
+            "groups": groups, "per_group": per_group}
 
 
 def cache_location():
@@ -183,8 +475,9 @@ def cache_location():
 
 
 def add_arguments(parser):
-    parser.add_argument("--only", default=",".join(FUNCTIONS), metavar="NAME[,NAME]",
-                        help=f"functions to compile (default all: {', '.join(FUNCTIONS)})")
+    parser.add_argument("--only", default=",".join(GROUPS), metavar="GROUP[,GROUP]",
+                        help=f"groups to compile (default all: {', '.join(GROUPS)}; "
+                             "contacts is what `granularsap contacts` and `info` use)")
     parser.add_argument("-q", "--quiet", action="store_true", help="print nothing")
 
 
@@ -193,12 +486,28 @@ def run(args) -> int:
 
     names = [n.strip() for n in args.only.split(",") if n.strip()]
     try:
-        out = warmup(names)
+        groups = resolve(names)
     except ValueError as exc:
         raise CLIError(str(exc)) from None
+    if not groups:
+        raise CLIError(f"--only names no group; choose from {', '.join(GROUPS)}")
+
+    def progress(group, seconds, compiled):
+        if not args.quiet:
+            k = groups.index(group) + 1
+            what = (f"compiled {compiled} kernel signatures" if compiled
+                    else "every kernel came from the cache")
+            print(f"granularsap warmup: [{k}/{len(groups)}] {group} ready in {seconds:.1f} s "
+                  f"({what}): {GROUPS[group]}", file=sys.stderr, flush=True)
+
+    if not args.quiet:
+        print(f"granularsap warmup: compiling {', '.join(groups)} into {cache_location()} "
+              "(a minute or two on a cold cache, a few seconds on a warm one)",
+              file=sys.stderr, flush=True)
+    out = warmup(groups, progress=progress)
     if not args.quiet:
         what = (f"compiled {out['compiled']} kernel signatures" if out["compiled"]
                 else "nothing to compile: every kernel came from the cache")
-        print(f"granularsap warmup: {', '.join(names)} ready in {out['seconds']:.1f} s "
+        print(f"granularsap warmup: {', '.join(groups)} ready in {out['seconds']:.1f} s "
               f"({what}); cache: {cache_location()}")
     return 0

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
 import time
 
 import h5py
+import numba
 import numpy as np
 import pytest
 
@@ -165,6 +167,51 @@ class TestErrors:
         assert "already exists; use --force" in capsys.readouterr().err
         assert main(["contacts", str(dump), "-o", out, "--cutoff", "1", "-q", "-f"]) == 0
 
+    def test_too_many_threads_names_the_option(self, tmp_path, capsys):
+        """Issue 20: the error names --threads, not n_threads / NUMBA_NUM_THREADS."""
+        dump = tmp_path / "e.dump"
+        write_dump(dump, random_frames(10, 1, cell=lammps_cell(5, 5, 5)),
+                   columns=("id", "radius", "x", "y", "z"))
+        top = numba.config.NUMBA_NUM_THREADS
+        assert main(["contacts", str(dump), "-o", str(tmp_path / "e.h5"), "--threads",
+                     "1000"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f"granularsap contacts: error: --threads 1000 is more than the {top} "
+                       "threads numba can run here (the cores, or NUMBA_NUM_THREADS if set); "
+                       f"give --threads 1 to {top}"]
+        assert not (tmp_path / "e.h5.partial").exists()
+        assert main(["contacts", str(dump), "-o", str(tmp_path / "e.h5"), "--threads",
+                     str(top), "-q"]) == 0
+
+    def test_threads_help_and_docs_give_the_same_default(self):
+        from granularsap.cli import build_parser
+
+        sub = build_parser()._subparsers._group_actions[0].choices["contacts"]
+        (action,) = [a for a in sub._actions if "--threads" in a.option_strings]
+        with open(os.path.join(DATA, os.pardir, "docs", "cli.md")) as fh:
+            docs = fh.read()
+        (row,) = [line for line in docs.splitlines() if line.startswith("| `--threads N` |")]
+        assert row.split("|")[2].strip().replace("`", "") == " ".join(action.help.split())
+
+    @pytest.mark.parametrize("json_out", [False, True], ids=["text", "json"])
+    def test_info_into_a_closed_pipe_exits_quietly(self, tmp_path, json_out):
+        """Issue 20: `granularsap info f.h5 | head -1` said "[Errno 32] Broken pipe", exit 2."""
+        dump = tmp_path / "p.dump"
+        write_dump(dump, random_frames(20, 3, cell=lammps_cell(5, 5, 5)),
+                   columns=("id", "radius", "x", "y", "z"))
+        out = tmp_path / "p.h5"
+        assert main(["contacts", str(dump), "-o", str(out), "-q"]) == 0
+        read, write = os.pipe()
+        os.close(read)  # the reader is gone before the first line
+        try:
+            proc = subprocess.run([sys.executable, "-m", "granularsap", "info", str(out),
+                                   *(["--json"] if json_out else [])],
+                                  stdout=write, stderr=subprocess.PIPE, text=True, timeout=120)
+        finally:
+            os.close(write)
+        assert proc.stderr == ""
+        assert proc.returncode == 141  # 128 + SIGPIPE, as a shell reports `head`'s writer
+
     @pytest.mark.parametrize("frames", ["a:b", "-1:", "0:5:0", "1:2:3:4"])
     def test_bad_frames_is_a_usage_error(self, tmp_path, frames, capsys):
         with pytest.raises(SystemExit) as exc:
@@ -184,6 +231,43 @@ class TestErrors:
         assert not out.exists()
         with ContactsFile(out, allow_incomplete=True) as cf:
             assert cf.n_frames == 2 and not cf.complete
+
+
+    def test_truncated_dump_says_how_to_finish_without_the_damaged_frame(self, tmp_path,
+                                                                         capsys):
+        """Issue 20: a rerun stops at the same frame, so the message says what to do."""
+        dump = tmp_path / "t.dump"
+        write_dump(dump, random_frames(20, 4, cell=lammps_cell(5, 5, 5)),
+                   columns=("id", "radius", "x", "y", "z"))
+        lines = dump.read_text().splitlines(keepends=True)
+        dump.write_text("".join(lines[:-3]))  # frame 3 loses its last rows
+        out = tmp_path / "t.h5"
+        for _ in range(2):  # the first run and the rerun stop at frame 3 and say why
+            assert main(["contacts", str(dump), "-o", str(out), "-q"]) == 2
+            err = capsys.readouterr().err.strip().splitlines()
+            assert len(err) == 1
+            assert re.search(r"frame 3, line \d+: truncated: .*; the 3 good frames before it are "
+                             r"kept in .*t\.h5\.partial, but running the same command again "
+                             r"stops here again: to finish .*t\.h5 without frame 3 and the "
+                             r"frames after it, run it with --frames 0:3 ", err[0]), err
+        assert main(["contacts", str(dump), "-o", str(out), "--frames", "0:3"]) == 0
+        assert "resuming" in capsys.readouterr().err  # the 3 frames were not computed again
+        ref = tmp_path / "ref.h5"
+        assert main(["contacts", str(dump), "-o", str(ref), "--frames", "0:3", "-q"]) == 0
+        assert_same_contacts_file(out, ref)
+
+    def test_another_start_or_step_still_starts_over(self, tmp_path, capsys):
+        dump = tmp_path / "t.dump"
+        write_dump(dump, random_frames(20, 4, cell=lammps_cell(5, 5, 5)),
+                   columns=("id", "radius", "x", "y", "z"))
+        lines = dump.read_text().splitlines(keepends=True)
+        dump.write_text("".join(lines[:-3]))
+        out = tmp_path / "t.h5"
+        assert main(["contacts", str(dump), "-o", str(out), "-q"]) == 2
+        assert main(["contacts", str(dump), "-o", str(out), "--frames", "1:3"]) == 0
+        err = capsys.readouterr().err
+        assert "starting over: partial run with different parameters" in err
+        assert "resuming" not in err
 
 
 def _frames_done(partial):
@@ -238,6 +322,38 @@ class TestInterruption:
         ref = tmp_path / "ref.h5"
         assert main(["contacts", str(slow_dump), "-o", str(ref), "-q"]) == 0
         assert_same_contacts_file(out, ref)
+
+    def test_resumed_file_timing_counts_every_run(self, tmp_path):
+        """Issue 20: the timing of a resumed file is the sum over its runs, not the last."""
+        from granularsap.io import ContactParams, compute_contacts
+
+        dump = tmp_path / "r.dump"
+        write_dump(dump, random_frames(400, 6, cell=lammps_cell(9, 9, 9), seed=5),
+                   columns=("id", "radius", "x", "y", "z"))
+        out = tmp_path / "r.h5"
+        params = ContactParams()
+        written = []
+        with pytest.raises(KeyboardInterrupt):  # stopped after three committed frames
+            compute_contacts(dump, out, params, commit_seconds=0,
+                             should_stop=lambda: written.append(1) or len(written) == 3)
+        first = {"read": 0.0, "compute": 0.0, "write": 0.0, "wall": 0.0}
+        partial = tmp_path / "r.h5.partial"
+        for name in sorted(os.listdir(partial)):
+            if name.endswith(".h5"):
+                with h5py.File(partial / name) as f:
+                    seg = json.loads(f.attrs["timing"])
+                for k in first:
+                    first[k] += seg[k]
+        assert first["compute"] > 0 and first["wall"] >= first["compute"]
+        second = compute_contacts(dump, out, params)["timing"]
+        assert second["frames_this_run"] == 3
+        with ContactsFile(out) as cf:
+            timing = cf.timing
+        assert timing["runs"] == 2
+        for k in ("read", "compute", "wall"):
+            assert timing[k] == pytest.approx(first[k] + second[k], rel=1e-12), k
+        # (the summary's write time includes the final assembly, the file's cannot)
+        assert first["write"] < timing["write"] <= first["write"] + second["write"]
 
     def test_no_resume_starts_over(self, tmp_path, capsys):
         from granularsap.io import ContactParams, ContactsWriter, frame_contacts

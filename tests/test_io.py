@@ -204,6 +204,34 @@ class TestTruncatedAndCorrupt:
         with pytest.raises(DumpFormatError, match=r"frame 1, line 40: expected an 'ITEM:' line"):
             list(iter_frames(path))
 
+    def test_fewer_rows_than_number_of_atoms_names_the_frame_and_the_missing_rows(self,
+                                                                               tmp_path):
+        """Issue 20: not "expected 6 values, got 2" on the next frame's TIMESTEP line."""
+        path, lines = self._dump(tmp_path)
+        del lines[39 + 9 + 20:39 + 9 + 30]  # frame 1 keeps 20 of its 30 atom rows
+        path.write_text("".join(lines))
+        got = []
+        with pytest.raises(DumpFormatError,
+                           match=r"t\.dump: frame 1, line 69: NUMBER OF ATOMS says 30 atom rows "
+                                 r"but the frame has only 20 \(10 missing\): 'ITEM: TIMESTEP' "
+                                 r"comes after atom row 20"):
+            for fr in iter_frames(path):
+                got.append(fr.index)
+        assert got == [0]
+
+    def test_duplicate_id_names_the_line_of_the_second_row(self, tmp_path):
+        path, lines = self._dump(tmp_path)
+        first, second = 39 + 9 + 3, 39 + 9 + 17  # 0-based: atom rows 4 and 18 of frame 1
+        parts = lines[second].split()
+        parts[0] = lines[first].split()[0]
+        lines[second] = " ".join(parts) + "\n"
+        path.write_text("".join(lines))
+        dup = lines[first].split()[0]
+        with pytest.raises(DumpFormatError,
+                           match=rf"frame 1, line {second + 1}: duplicate atom id {dup} \(atom "
+                                 rf"row 18; atom row 4, line {first + 1}, has it too\)"):
+            list(iter_frames(path))
+
     def test_error_survives_pickling(self, tmp_path):
         import pickle
 

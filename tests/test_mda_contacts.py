@@ -91,6 +91,34 @@ class TestBackends:
             np.testing.assert_array_equal(a, b)
 
 
+def test_multiprocessing_backend_leaks_no_semaphore(tmp_path):
+    """Issue 20: the resource tracker reported a leaked semaphore at exit."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = tmp_path / "mp.py"
+    script.write_text(textwrap.dedent("""
+        import numpy as np
+        import MDAnalysis as mda
+        from MDAnalysis.coordinates.memory import MemoryReader
+        from granularsap.mda_analysis import Contacts
+
+        if __name__ == "__main__":
+            rng = np.random.default_rng(1)
+            u = mda.Universe.empty(200, trajectory=False)
+            u.load_new(rng.uniform(0, 10, (4, 200, 3)).astype(np.float32),
+                       format=MemoryReader, dimensions=[10, 10, 10, 90, 90, 90], dt=1.0)
+            c = Contacts(u.atoms, cutoff=1.2).run(backend="multiprocessing", n_workers=2)
+            print(sum(len(p) for p in c.results.pairs))
+    """))
+    proc = subprocess.run([sys.executable, "-W", "default", str(script)], capture_output=True,
+                          text=True, timeout=300, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert int(proc.stdout) > 0
+    assert "leaked" not in proc.stderr and "resource_tracker" not in proc.stderr, proc.stderr
+
+
 class TestValidation:
     def test_errors(self, universe):
         ag = universe.atoms

@@ -276,6 +276,23 @@ class TestClumpContacts:
         with pytest.raises(exc, match=match):
             clump_contacts(np.zeros((3, 3)), 0.5, ids)
 
+    def test_uint64_ids_at_or_above_2_63_are_refused_not_made_negative(self):
+        """Issue 20: such ids came back as negative int64 clump labels."""
+        from granularsap import ContactSearch
+
+        pos = np.array([[0.0, 0, 0], [0.9, 0, 0], [1.8, 0, 0]])
+        big = np.array([7, 2**63, 2**63 + 5], dtype=np.uint64)
+        with pytest.raises(ValueError, match=r"clump_ids must be below 2\*\*63 \(labels are "
+                                             r"int64\), got 9223372036854775813 at index 2"):
+            clump_contacts(pos, 0.5, big)
+        with pytest.raises(ValueError, match=r"clump_ids must be below 2\*\*63"):
+            ContactSearch().update(pos, 0.5, clump_ids=big)
+        # below 2**63 uint64 ids are the same labels as int64 ones
+        ok = np.array([7, 2**63 - 1, 2**63 - 1], dtype=np.uint64)
+        sp, cp = clump_contacts(pos, 0.5, ok)
+        assert sp.tolist() == [[0, 1]] and cp.tolist() == [[7, 2**63 - 1]]
+        assert cp.dtype == np.int64
+
     def test_clump_wider_than_half_the_cell_pairs_spheres_at_their_own_images(self):
         # a chain of spheres longer than half the cell: every sphere pair between
         # different clumps is decided at its own minimum image

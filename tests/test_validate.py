@@ -117,10 +117,19 @@ class TestDifferencesAreCaught:
 
 
 class TestUsage:
-    def test_needs_cutoff_or_radii(self, tmp_path, capsys):
-        dump = _write_dump(tmp_path / "a.dump", [np.zeros((2, 3))])
-        assert main(["validate", dump]) == 2
-        assert "give --cutoff C or --radius-column NAME" in capsys.readouterr().err
+    def test_without_cutoff_or_radii_the_default_cutoff(self, tmp_path, capsys):
+        """Issue 20: `validate data/lj.dump --against lammps,mdanalysis` (the README's
+        command) exited 2 asking for --cutoff."""
+        pos = np.array([[1.0, 1, 1], [3.4, 1, 1], [6.0, 1, 1]])  # 2.4 apart, then 2.6
+        dump = _write_dump(tmp_path / "a.dump", [pos])
+        assert main(["validate", dump, "--against", "lammps"]) == 0
+        out = capsys.readouterr().out
+        assert out.startswith(f"granularsap validate: {dump}: neighbour pairs d <= 2.5 (no "
+                              "radius column and no --cutoff: the default 2.5, Lennard-Jones's "
+                              "usual 2.5 sigma); against lammps\n")
+        assert "1 frame(s): identical" in out
+        assert main(["validate", dump, "--cutoff", "2.6", "--against", "lammps"]) == 0
+        assert "d <= 2.6; against" in capsys.readouterr().out
 
     def test_unknown_radius_column(self, tmp_path, capsys):
         dump = _write_dump(tmp_path / "a.dump", [np.zeros((2, 3))])

@@ -79,7 +79,8 @@ def add_arguments(parser):
     parser.add_argument("--topology", default=None, metavar="FILE",
                         help="topology file for MDAnalysis (e.g. for DCD/XTC)")
     parser.add_argument("--threads", type=_positive_int, default=None, metavar="N",
-                        help="numba threads per frame (default: all; 1 per worker with --workers)")
+                        help="numba threads per frame (default: all cores; with --workers N, "
+                             "cores / N per worker)")
     dist = parser.add_mutually_exclusive_group()
     dist.add_argument("--workers", type=_positive_int, default=None, metavar="N",
                       help="start a local Dask cluster with N worker processes")
@@ -106,6 +107,14 @@ def run(args) -> int:
     from .pipeline import ContactParams, check_output, compute_contacts
 
     threads = args.threads
+    if threads is not None:
+        from .._numba import max_threads
+
+        top = max_threads()
+        if threads > top:
+            raise CLIError(f"--threads {threads} is more than the {top} threads numba can run "
+                           f"here (the cores, or NUMBA_NUM_THREADS if set); give --threads 1 "
+                           f"to {top}")
     if threads is None and args.workers is not None:
         import os
 
@@ -163,15 +172,14 @@ def run(args) -> int:
         # shown on a terminal only, and only for runs longer than half a second
         bar = tqdm(total=None, unit="frame", desc="contacts", file=sys.stderr,
                    dynamic_ncols=True, mininterval=0.5, delay=0.5, disable=None)
-    from ..warmup import compile_notice, warmup
+    from ..warmup import compile_notice, warm_contacts
 
     try:
         with compile_notice(quiet=args.quiet):
             if args.workers is not None:
                 # compile once here rather than in every worker at the same time; the
                 # workers then load the kernels from the disk cache
-                warmup([{"cutoff": "neighbor_pairs", "spheres": "sphere_contacts",
-                         "clumps": "clump_contacts"}[params.mode]])
+                warm_contacts(modes=(params.mode,))
             summary = compute_contacts(args.trajectory, args.output, params,
                                        format=args.format, topology=args.topology,
                                        frames=args.frames, resume=not args.no_resume,

@@ -276,6 +276,9 @@ class ContactsWriter:
         self._segments = []   # (file name, frame indices)
         self.n_frames = 0
         self._timing = {}
+        self._earlier = {}    # seconds of the earlier runs of a resumed file (their segments)
+        self._live = None     # (this run's timing dict, its start) to split among segments
+        self._committed = {}  # this run's seconds up to its last segment
         if resume and os.path.exists(self.tmp):
             self._try_resume()
         if not self.resumed:
@@ -305,15 +308,27 @@ class ContactsWriter:
             self.discarded_reason = f"unreadable partial run ({exc})"
             return
         mine = self._run_info()
-        same = all(info.get(k) == mine[k] for k in ("format", "schema_version", "parameters",
-                                                     "distances", "clumps"))
-        if not same:
+        same = all(info.get(k) == mine[k] for k in ("format", "schema_version", "distances",
+                                                     "clumps"))
+        old, new = dict(info.get("parameters") or {}), dict(mine["parameters"])
+        old_frames, new_frames = old.pop("frames", None), new.pop("frames", None)
+        if not same or old != new:
             self.discarded_reason = "partial run with different parameters"
             return
         segments, last, rows = _list_segments(self.tmp, self.h5py)
+        if old_frames != new_frames:
+            # another STOP only (a run cut short by a damaged frame, finished without it):
+            # the committed frames are the first ones of the new selection too
+            done = np.concatenate([idx for _, idx in segments]) if segments else []
+            if not _same_prefix(old_frames, new_frames, done):
+                self.discarded_reason = "partial run with different parameters"
+                return
+            info["parameters"] = mine["parameters"]
+            _atomic_write_text(os.path.join(self.tmp, "run.json"), json.dumps(info, indent=1))
         if rows:
             info["pair_index"] = "row"
         self.info = info
+        self._earlier = _segment_timing(self.tmp, segments, self.h5py)
         self._segments = segments
         self.n_frames = sum(len(idx) for _, idx in segments)
         self._prev = last
@@ -359,6 +374,7 @@ class ContactsWriter:
             f.attrs["pair_index"] = self.info.get("pair_index", "id")
             f.attrs["complete"] = np.int8(0)
             f.attrs["n_frames"] = np.int64(len(self._buffer))
+            f.attrs["timing"] = json.dumps(self._timing_delta(), sort_keys=True)
             _write_block(f, block)
         _fsync_path(tmp)
         os.replace(tmp, final)
@@ -369,11 +385,43 @@ class ContactsWriter:
     def set_timing(self, timing: dict):
         self._timing = dict(timing)
 
+    def track_timing(self, timing: dict, started: float):
+        """Follow this run's ``timing`` (read/compute/write seconds, updated in place) and
+        its start (``time.perf_counter()``): every segment records the seconds spent since
+        the previous one, so that a resumed file's ``timing`` counts every run."""
+        self._live = (timing, started)
+
+    def _timing_now(self):
+        if self._live is None:
+            return {}
+        timing, started = self._live
+        now = {k: float(timing.get(k, 0.0)) for k in _TIMED}
+        now["wall"] = time.perf_counter() - started
+        return now
+
+    def _timing_delta(self):
+        now = self._timing_now()
+        delta = {k: v - self._committed.get(k, 0.0) for k, v in now.items()}
+        self._committed = now
+        delta["run"] = int(self._earlier.get("runs", 0))  # which run wrote the segment
+        return delta
+
     def finish(self, timing=None):
-        """Assemble the segments into the final file, mark it complete, rename it."""
+        """Assemble the segments into the final file, mark it complete, rename it.
+
+        The file's ``timing`` is ``timing`` (this run) plus the seconds of the
+        earlier runs of a resumed file; ``runs`` counts them.
+        """
         if timing is not None:
             self.set_timing(timing)
         self.commit()
+        if self._timing:
+            total = dict(self._timing)
+            for k in (*_TIMED, "wall"):
+                if k in total or k in self._earlier:
+                    total[k] = float(total.get(k, 0.0)) + self._earlier.get(k, 0.0)
+            total["runs"] = int(self._earlier.get("runs", 0)) + 1
+            self._timing = total
         paths = [os.path.join(self.tmp, name) for name, _ in self._segments]
         tmp = self.path + ".tmp"
         if os.path.isfile(tmp):  # left by a run killed while assembling: never trusted
@@ -430,6 +478,39 @@ def _fsync_path(path):
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+_TIMED = ("read", "compute", "write")
+
+
+def _same_prefix(old_frames, new_frames, done):
+    """True if the frames ``done`` of selection ``old_frames`` ("START:STOP:STEP") are the
+    first frames of ``new_frames`` too (same START and STEP, every one before its STOP)."""
+    def parts(text):
+        try:
+            vals = [int(v) if v else None for v in str(text).split(":")]
+        except ValueError:
+            return None
+        return vals if len(vals) == 3 else None
+
+    a, b = parts(old_frames), parts(new_frames)
+    if a is None or b is None or (a[0] or 0, a[2] or 1) != (b[0] or 0, b[2] or 1):
+        return False
+    return b[1] is None or all(int(i) < b[1] for i in done)
+
+
+def _segment_timing(directory, segments, h5py):
+    """Seconds recorded by the committed segments (the earlier runs), and how many runs
+    wrote them (``runs``)."""
+    total, runs = {}, set()
+    for name, _ in segments:
+        with h5py.File(os.path.join(directory, name), "r") as f:
+            seg = json.loads(f.attrs.get("timing", "{}"))
+        runs.add(int(seg.pop("run", 0)))
+        for k, v in seg.items():
+            total[k] = total.get(k, 0.0) + float(v)
+    total["runs"] = len(runs)
+    return total
 
 
 def _list_segments(directory, h5py):

@@ -150,6 +150,11 @@ def _parse_atoms(lines, ncol, path, frame, first_line):
     # slow path: locate the bad row, or fall back to string columns
     rows = []
     for k, line in enumerate(lines):
+        if line.startswith("ITEM:"):  # the next item: this frame has fewer rows than it says
+            raise DumpFormatError(
+                path, frame, first_line + k,
+                f"NUMBER OF ATOMS says {len(lines)} atom rows but the frame has only {k} "
+                f"({len(lines) - k} missing): {line.strip()[:40]!r} comes after atom row {k}")
         parts = line.split()
         if len(parts) != ncol:
             raise DumpFormatError(path, frame, first_line + k,
@@ -451,8 +456,15 @@ def _build_frame(path, index, names, rows, header, coordinates, first_row, frame
     n = len(rows)
     ids = columns.get("id")
     ids = np.arange(1, n + 1, dtype=np.int64) if ids is None else ids
-    if len(np.unique(ids)) != n:
-        raise DumpFormatError(path, index, first_row, "duplicate atom ids")
+    uniq, first_at = np.unique(ids, return_index=True)
+    if len(uniq) != n:
+        seen = np.zeros(n, bool)
+        seen[first_at] = True
+        k = int(np.flatnonzero(~seen)[0])  # the first row whose id an earlier row has
+        earlier = int(np.flatnonzero(ids[:k] == ids[k])[0])
+        raise DumpFormatError(path, index, first_row + k,
+                              f"duplicate atom id {int(ids[k])} (atom row {k + 1}; atom row "
+                              f"{earlier + 1}, line {first_row + earlier}, has it too)")
     radius = None
     if "radius" in columns:
         radius = columns["radius"].astype(np.float64)

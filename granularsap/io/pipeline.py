@@ -27,6 +27,7 @@ import numpy as np
 from ._frame import Frame
 from ._lock import OutputBusyError, lock_path, output_lock
 from .hdf5 import ContactsWriter, FrameResult, partial_path
+from .lammps_dump import DumpFormatError
 from .readers import TrajectoryError, count_frames, describe_format, iter_frames, resolve_format
 
 __all__ = ["DOMAIN_PARTICLES", "ContactParams", "OutputBusyError", "check_output",
@@ -623,6 +624,7 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
     timing = {"read": 0.0, "compute": 0.0, "write": 0.0}
     runner = None
     t_start = time.perf_counter()
+    writer.track_timing(timing, t_start)
     n_contacts = n_new = 0
     try:
         if progress is not None:
@@ -717,6 +719,19 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
         t0 = time.perf_counter()
         writer.finish(timing)
         timing["write"] += time.perf_counter() - t0
+    except DumpFormatError as exc:
+        kept = writer.n_frames
+        if not kept or exc.frame is None or exc.frame <= start:
+            raise
+        # the good frames are kept, but the same command would stop at the same frame
+        sel = f"{start}:{exc.frame}" + (f":{step}" if step != 1 else "")
+        raise DumpFormatError(
+            exc.path, exc.frame, exc.line,
+            f"{exc.message}; the {kept} good frames before it are kept in "
+            f"{partial_path(output)}, but running the same command again stops here again: "
+            f"to finish {output} without frame {exc.frame} and the frames after it, run it "
+            f"with --frames {sel} (Python: frames=slice({start}, {exc.frame}, {step})), "
+            "which resumes from them; or repair the trajectory") from None
     finally:
         if runner is not None:
             runner.close()
