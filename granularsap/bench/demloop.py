@@ -382,6 +382,7 @@ def dem_loop(n, *, steps=STEPS, settle=SETTLE, n_threads=1, seed=0, example=None
             system.close()
     else:
         out["lammps_missing"] = why
+        out["settle"] = 0  # LAMMPS settles the pour: without it, the timed steps start unsettled
         if settle:
             say(f"  LAMMPS not available ({why}): granularsap times the pour from the column")
     say("  one frame of the pour, as the bench's lammps-rebuild and granularsap-steady")
@@ -416,8 +417,9 @@ def dem_loop(n, *, steps=STEPS, settle=SETTLE, n_threads=1, seed=0, example=None
 def format_result(r):
     """The lines ``granularsap bench dem-loop`` prints for one result."""
     ms = 1e3
-    lines = [f"dem-loop N={r['n']}: {r['steps']} steps after {r['settle']} of settling, "
-             f"{r['threads']} thread(s); ms per step, means over the steps"]
+    start = f"after {r['settle']} of settling" if r["settle"] else "from the column"
+    lines = [f"dem-loop N={r['n']}: {r['steps']} steps {start}, {r['threads']} thread(s); "
+             "ms per step, means over the steps"]
     for name, s in r["settings"].items():
         g = s["granularsap"]
         lines.append(f" {name}: {s['what']}")
@@ -512,7 +514,7 @@ def run_dem_loop(args):
         print(format_result(r), flush=True)
     if getattr(args, "json", None):
         with open(args.json, "w") as fh:
-            json.dump({"schema": "granularsap-bench-dem-loop/1", "machine": machine,
+            json.dump({"schema": "granularsap-bench-dem-loop/2", "machine": machine,
                        "results": results}, fh, indent=1)
         print(f"wrote {args.json}")
     return 0
