@@ -308,26 +308,41 @@ def test_spatial_order_keeps_springs(ex):
 
 @pytest.mark.lammps
 def test_dem_loop_runs_against_lammps(ex):
-    lammps = pytest.importorskip("lammps_bridge")
+    pytest.importorskip("lammps_bridge")
     from granularsap.bench import demloop
 
-    del lammps
     r = demloop.dem_loop(150, steps=8, settle=300, n_threads=1, example=ex)
-    g, lam = r["granularsap"], r["lammps"]
-    assert 0 < g["min"] <= g["median"] and g["mean"] > 0 and np.isfinite(g["mean"])
-    assert lam["pair"] > 0 and lam["neigh"] >= 0 and r["lammps_builds"] >= 0
-    assert np.isfinite(r["ratio_neigh_pair"]) and r["ratio_neigh_pair"] > 0
-    assert 0 < r["ratio_grains_neigh_pair"] < r["ratio_neigh_pair"]
-    assert 0 < g["walls_mean"] < g["mean"]
-    assert len(r["lammps_chunks"]) == len(g["chunk_means"]) == 8
-    assert r["fastest_chunk"]["granularsap"] == min(g["chunk_means"])
-    # the two codes pour alike: after 300 steps from the same column, from the same
-    # state, the same model: contact counts close
-    assert g["contacts"] > 0 and abs(g["contacts"] - r["lammps_contacts"]) <= max(
-        5, 0.1 * r["lammps_contacts"])
+    assert set(r["settings"]) == {"verlet", "rebuild"}
+    verlet, rebuild = r["settings"]["verlet"], r["settings"]["rebuild"]
+    for s in (verlet, rebuild):
+        g, lam = s["granularsap"], s["lammps"]
+        assert 0 < g["min"] <= g["median"] and np.isfinite(g["mean"])
+        assert 0 < g["walls_mean"] < g["mean"]
+        assert g["grains_mean"] == pytest.approx(g["mean"] - g["walls_mean"])
+        assert lam["pair"] > 0 and lam["modify"] > 0 and lam["neigh"] >= 0
+        assert len(s["lammps_chunks"]) == len(g["chunk_means"]) == 8
+        assert s["fastest_chunk"]["granularsap"] == min(g["chunk_means"])
+        q = s["ratios"]
+        assert 0 < q["all_neigh_modify_pair"] < q["all_neigh_modify"]
+        # the two codes pour alike: after 300 steps from the same column, from the
+        # same state, the same model: contact counts close
+        assert g["contacts"] > 0 and abs(g["contacts"] - s["lammps_contacts"]) <= max(
+            5, 0.1 * s["lammps_contacts"])
+    # rebuilt every step: both codes build their list on each of the 8 steps (LAMMPS's
+    # count runs on from the run's set-up, one build more); the Verlet list keeps it
+    assert rebuild["granularsap"]["rebuilds"] == 8 and rebuild["lammps_builds"] >= 8
+    assert verlet["granularsap"]["rebuilds"] < 8 and verlet["lammps_builds"] < 8
+    assert rebuild["lammps"]["neigh"] > verlet["lammps"]["neigh"]
+    assert 0 < rebuild["ratios"]["grains_neigh"] < rebuild["ratios"]["all_neigh"]
+    # the single frame, as the bench's lammps-rebuild and granularsap-steady see it
+    fr = r["frame"]
+    assert fr["same_pairs"] and fr["granularsap_steady"]["pairs"] > 0
+    assert 0 < fr["lammps_rebuild"]["neigh"] <= fr["lammps_rebuild"]["min"]
     text = demloop.format_result(r)
-    assert "ratio granularsap / LAMMPS Neigh" in text and "N=150" in text
-    assert "grain contacts only" in text and "fastest of 8 runs of 1 steps" in text
+    assert "N=150" in text and " verlet: a kept Verlet list" in text
+    assert " rebuild: rebuilt every step" in text and "grains / Neigh" in text
+    assert "Neigh + Modify" in text and "fastest of 8 runs of 1 steps" in text
+    assert "lammps-rebuild (Neigh + Comm of run 10" in text and "Modify holds" in text
 
 
 @pytest.mark.lammps
@@ -339,8 +354,22 @@ def test_bench_cli_dem_loop(capsys, tmp_path):
                  "--threads", "1", "--json", str(out)])
     assert code == 0
     text = capsys.readouterr().out
-    assert "dem-loop N=120" in text and "LAMMPS per step" in text
-    assert '"granularsap-bench-dem-loop/1"' in out.read_text()
+    assert "dem-loop N=120" in text and "LAMMPS (its timers)" in text
+    assert '"granularsap-bench-dem-loop/2"' in out.read_text()
+
+
+def test_bench_cli_dem_loop_without_lammps(capsys):
+    """--peers without a LAMMPS peer (or --exclude lammps) times granularsap alone."""
+    from granularsap.cli import main
+
+    code = main(["bench", "dem-loop", "--sizes", "100", "--steps", "3", "--settle", "50",
+                 "--threads", "1", "--peers", "granularsap,granularsap-steady"])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "dem-loop N=100: 3 steps from the column" in text
+    assert "LAMMPS: not run (not asked for)" in text
+    assert "LAMMPS (its timers)" not in text and "granularsap-steady" in text
+    assert "lammps-rebuild (Neigh" not in text
 
 
 def test_dem_loop_bad_arguments(tmp_path):

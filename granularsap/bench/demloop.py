@@ -115,10 +115,29 @@ def _log_breakdown(path):
     return sections, builds
 
 
-class LammpsPour:
-    """The example's pour in one LAMMPS instance (``pair_style granular``)."""
+#: the two settings the loop runs in, each code in its own way of doing it
+SETTINGS = {
+    "verlet": "a kept Verlet list (LAMMPS: neighbor 0.2 bin, check yes; granularsap: "
+              "rebuild_margin 0.2)",
+    "rebuild": "rebuilt every step (LAMMPS: neighbor 0.2 bin, every 1 delay 0 check no; "
+               "granularsap: rebuild_margin 0)",
+}
+#: what LAMMPS's Modify section holds in this pour (src/verlet.cpp stamps each as MODIFY)
+MODIFY_HOLDS = ("fix wall/gran x3 (walls: their contacts and history), nve/sphere, gravity, "
+                "NEIGH_HISTORY (history remap on list builds)")
+#: repeats of the single-frame rebuild (the bench's lammps-rebuild and granularsap-steady)
+FRAME_REPEATS = 5
 
-    def __init__(self, example, positions, velocities, radii, width, *, n_threads, dt):
+
+class LammpsPour:
+    """The example's pour in one LAMMPS instance (``pair_style granular``).
+
+    ``check=True``: LAMMPS's Verlet list (``neigh_modify delay 0 every 1 check
+    yes``); ``check=False``: the list rebuilt on every step (``check no``).
+    """
+
+    def __init__(self, example, positions, velocities, radii, width, *, n_threads, dt,
+                 check=True, omegas=None):
         import lammps_bridge
 
         self.folder = tempfile.mkdtemp(prefix="granularsap-bench-dem-")
@@ -136,7 +155,8 @@ class LammpsPour:
                  "comm_modify vel yes",
                  f"region box block 0 {w!r} 0 {w!r} -1.0 {top!r} units box", "create_box 1 box",
                  "pair_style granular", f"pair_coeff * * {model}",
-                 f"neighbor {MARGIN!r} bin", "neigh_modify delay 0 every 1 check yes",
+                 f"neighbor {MARGIN!r} bin",
+                 f"neigh_modify delay 0 every 1 check {'yes' if check else 'no'}",
                  f"timestep {float(dt)!r}"]
         try:
             for c in cmds:
@@ -151,6 +171,8 @@ class LammpsPour:
             mass = material.density * 4.0 / 3.0 * np.pi * radii ** 3
             self.lmp.numpy.extract_atom("radius", nelem=n)[:n] = radii[tag]
             self.lmp.numpy.extract_atom("rmass", nelem=n)[:n] = mass[tag]
+            if omegas is not None:
+                self.lmp.numpy.extract_atom("omega", nelem=n)[:n] = np.asarray(omegas)[tag]
             for c in [f"fix floor all wall/gran granular {model} zplane 0.0 NULL",
                       f"fix side_x all wall/gran granular {model} xplane 0.0 {w!r}",
                       f"fix side_y all wall/gran granular {model} yplane 0.0 {w!r}",
@@ -182,6 +204,20 @@ class LammpsPour:
         self.lmp.command("log none")
         return _log_breakdown(self.log)
 
+    def timed_runs(self, bounds):
+        """The timed steps as consecutive runs over ``bounds``: per-step sections of each
+        run, of all, and the list builds."""
+        sections, builds, chunks = {}, 0, []
+        for c, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+            part, builds = self.run(b - a, timed=True, pre=c == 0)
+            # the timers restart with every run; the count of list builds runs on
+            # from the first run's set-up (runs with pre no do not reset it)
+            chunks.append({k.lower(): v / (b - a) for k, v in part.items()})
+            for k, v in part.items():
+                sections[k.lower()] = sections.get(k.lower(), 0.0) + v
+        steps = bounds[-1] - bounds[0]
+        return {k: v / steps for k, v in sections.items()}, chunks, builds
+
     def state(self):
         """(positions, velocities, spins) of the grains in id order."""
         n = self.lmp.extract_setting("nlocal")
@@ -205,11 +241,11 @@ class LammpsPour:
 
 
 def run_granularsap(example, positions, velocities, omegas, radii, width, steps, *, n_threads,
-                    dt, ids=None):
+                    dt, ids=None, margin=MARGIN):
     """Step the example's pour ``steps`` times; per-step search + history seconds and stats."""
     floor = example.floor_mesh(width)
     pour = example.Pour(positions, velocities, radii, width, floor, dt=dt,
-                        rebuild_margin=MARGIN, n_threads=n_threads, ids=ids, omegas=omegas)
+                        rebuild_margin=margin, n_threads=n_threads, ids=ids, omegas=omegas)
     seconds = np.empty(steps)
     walls = np.empty(steps)
     rebuilds = 0
@@ -225,20 +261,91 @@ def run_granularsap(example, positions, velocities, omegas, radii, width, steps,
             "path": pour.search.stats.get("path")}
 
 
+def frame_rebuild(positions, radii, *, n_threads, repeats=FRAME_REPEATS, lammps=True):
+    """One frame of the pour searched as the rest of the bench does it.
+
+    ``lammps-rebuild`` (LAMMPS ``neighbor 0.0 bin``, ``check no``, ``run 10``:
+    its ``(Neigh + Comm) / 10``) and ``granularsap-steady`` (a kept
+    ``ContactSearch`` rebuilding every call), after one untimed call each;
+    the min and median over ``repeats`` and whether the two found the same pairs.
+    """
+    from .peers import GranularSAPSteady, LammpsRebuild
+    from .workloads import Workload
+
+    n = len(radii)
+    wl = Workload(name="dem-loop-frame", label=f"dem-loop frame, {n} grains", kind="contacts",
+                  n=n, frames=[np.ascontiguousarray(positions, dtype=float)],
+                  radii=np.asarray(radii, dtype=float))
+    out = {}
+    peer = GranularSAPSteady()
+    peer.setup(wl, n_threads)
+    ours = peer.run(0)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        ours = peer.run(0)
+        times.append(time.perf_counter() - t0)
+    out["granularsap_steady"] = {"min": min(times), "median": float(np.median(times)),
+                                 "pairs": len(ours)}
+    if lammps:
+        peer = LammpsRebuild()
+        peer.setup(wl, n_threads)
+        try:
+            theirs = peer.run(0)
+            neigh, comm = [], []
+            for _ in range(repeats):
+                theirs = peer.run(0)
+                s = peer.last_stats()["seconds"]
+                neigh.append(s["neigh"])
+                comm.append(s["comm"])
+            total = [a + b for a, b in zip(neigh, comm, strict=True)]
+            best = int(np.argmin(total))
+            out["lammps_rebuild"] = {"min": total[best], "median": float(np.median(total)),
+                                     "neigh": neigh[best], "comm": comm[best],
+                                     "pairs": len(theirs)}
+            out["same_pairs"] = bool(len(ours) == len(theirs) and np.array_equal(
+                np.unique(ours, axis=0), np.unique(theirs, axis=0)))
+        finally:
+            peer.close()
+    return out
+
+
+def _granularsap_figures(gs, bounds):
+    s = gs.pop("seconds")
+    w = gs.pop("wall_seconds")
+    pairs = list(zip(bounds[:-1], bounds[1:], strict=True))
+    means = [float(s[a:b].mean()) for a, b in pairs]
+    grains = [float((s[a:b] - w[a:b]).mean()) for a, b in pairs]
+    return {"mean": float(s.mean()), "min": float(s.min()), "median": float(np.median(s)),
+            "grains_mean": float((s - w).mean()), "grains_median": float(np.median(s - w)),
+            "walls_mean": float(w.mean()), "chunk_means": means, "chunk_grains": grains, **gs}
+
+
+def _ratio(a, b):
+    return a / b if b > 0 else float("inf")
+
+
 def dem_loop(n, *, steps=STEPS, settle=SETTLE, n_threads=1, seed=0, example=None, lammps=True,
              progress=None):
-    """Run the dem-loop comparison for ``n`` grains; a dict of figures (seconds per step)."""
+    """Run the dem-loop comparison for ``n`` grains; a dict of figures (seconds per step).
+
+    ``out["settings"]["verlet"]`` and ``out["settings"]["rebuild"]`` hold each
+    setting's ``granularsap`` figures (``grains_mean``: the grain search + its
+    history, ``walls_mean``: the wall search + its history, ``mean``: both),
+    ``lammps`` (its timer sections per step), list builds, contact counts and
+    the ratios; ``out["frame"]`` the single-frame rebuild of :func:`frame_rebuild`.
+    """
     say = progress or (lambda msg: None)
     ex = example or load_example()
     dt = 5e-4
     positions, velocities, radii, width = ex.initial_column(int(n), seed)
     omegas = np.zeros_like(positions)
     out = {"n": int(n), "steps": int(steps), "settle": int(settle), "threads": int(n_threads),
-           "seed": seed, "dt": dt, "rebuild_margin": MARGIN, "width": float(width)}
+           "seed": seed, "dt": dt, "rebuild_margin": MARGIN, "width": float(width),
+           "modify_holds": MODIFY_HOLDS, "settings": {k: {"what": v} for k, v in SETTINGS.items()}}
     # the timed steps in CHUNKS runs of equal length: LAMMPS's timers per run, and
     # granularsap's steps over the same ranges (the fastest run of each is robust to load)
     bounds = np.linspace(0, steps, min(CHUNKS, steps) + 1).round().astype(int).tolist()
-    chunks = []
     why = None
     if lammps:
         try:
@@ -255,95 +362,124 @@ def dem_loop(n, *, steps=STEPS, settle=SETTLE, n_threads=1, seed=0, example=None
                 say(f"  LAMMPS settles the pour: {settle} steps")
                 system.run(settle, timed=False)
             positions, velocities, omegas = system.state()
-            say(f"  LAMMPS: {steps} timed steps in {len(bounds) - 1} runs")
-            sections, builds = {}, 0
-            for c, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
-                part, builds = system.run(b - a, timed=True, pre=c == 0)
-                # the timers restart with every run; the count of list builds runs on
-                # from the first run's set-up (runs with pre no do not reset it)
-                chunks.append({k.lower(): v / (b - a) for k, v in part.items()})
-                for k, v in part.items():
-                    sections[k] = sections.get(k, 0.0) + v
-            out["lammps"] = {k.lower(): v / steps for k, v in sections.items()}
-            out["lammps_builds"] = builds
-            out["lammps_contacts"] = system.contacts()
+            say(f"  LAMMPS, Verlet list: {steps} timed steps in {len(bounds) - 1} runs")
+            per_step, chunks, builds = system.timed_runs(bounds)
+            out["settings"]["verlet"].update(lammps=per_step, lammps_chunks=chunks,
+                                             lammps_builds=builds,
+                                             lammps_contacts=system.contacts())
+        finally:
+            system.close()
+        # the same state rebuilt every step (its history starts empty, as granularsap's)
+        say(f"  LAMMPS, rebuilt every step: {steps} timed steps")
+        system = LammpsPour(ex, positions, velocities, radii, width, n_threads=n_threads, dt=dt,
+                            check=False, omegas=omegas)
+        try:
+            per_step, chunks, builds = system.timed_runs(bounds)
+            out["settings"]["rebuild"].update(lammps=per_step, lammps_chunks=chunks,
+                                              lammps_builds=builds,
+                                              lammps_contacts=system.contacts())
         finally:
             system.close()
     else:
         out["lammps_missing"] = why
+        out["settle"] = 0  # LAMMPS settles the pour: without it, the timed steps start unsettled
         if settle:
             say(f"  LAMMPS not available ({why}): granularsap times the pour from the column")
-    say(f"  granularsap: {steps} steps")
-    # untimed: compile (or load from the cache) what this pour's searches use
-    run_granularsap(ex, positions, velocities, omegas, radii, width, 3, n_threads=n_threads,
-                    dt=dt)
-    gs = run_granularsap(ex, positions, velocities, omegas, radii, width, steps,
-                         n_threads=n_threads, dt=dt)
-    s = gs.pop("seconds")
-    w = gs.pop("wall_seconds")
-    out["granularsap"] = {"min": float(s.min()), "median": float(np.median(s)),
-                          "mean": float(s.mean()), "walls_mean": float(w.mean()), **gs}
-    means = [float(s[a:b].mean()) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
-    walls = [float(w[a:b].mean()) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
-    out["granularsap"]["chunk_means"] = means
-    if chunks:
-        out["lammps_chunks"] = chunks
-        best = int(np.argmin(means))
-        fast = {"granularsap": min(means), "granularsap_walls": walls[best],
-                "granularsap_grains": min(m - x for m, x in zip(means, walls, strict=True))}
-        # LAMMPS's builds fall in some runs only: its fastest run by Neigh + Pair
-        fast["neigh_pair"] = min(c.get("neigh", 0.0) + c.get("pair", 0.0) for c in chunks)
-        out["fastest_chunk"] = fast
-    if "lammps" in out:
-        neigh = out["lammps"].get("neigh", 0.0)
-        pair = out["lammps"].get("pair", 0.0)
-        mean = out["granularsap"]["mean"]
-        grains = mean - out["granularsap"]["walls_mean"]
-        out["ratio_neigh"] = mean / neigh if neigh > 0 else float("inf")
-        out["ratio_neigh_pair"] = mean / (neigh + pair) if neigh + pair > 0 else float("inf")
-        # LAMMPS's walls (fix wall/gran) loop over the atoms in Modify, outside Neigh
-        out["ratio_grains_neigh"] = grains / neigh if neigh > 0 else float("inf")
-        out["ratio_grains_neigh_pair"] = (grains / (neigh + pair) if neigh + pair > 0
-                                          else float("inf"))
+    say("  one frame of the pour, as the bench's lammps-rebuild and granularsap-steady")
+    out["frame"] = frame_rebuild(positions, radii, n_threads=n_threads, lammps=why is None)
+    for name, margin in (("verlet", MARGIN), ("rebuild", 0.0)):
+        say(f"  granularsap, rebuild_margin {margin}: {steps} steps")
+        # untimed: compile (or load from the cache) what this pour's searches use
+        run_granularsap(ex, positions, velocities, omegas, radii, width, 3,
+                        n_threads=n_threads, dt=dt, margin=margin)
+        gs = run_granularsap(ex, positions, velocities, omegas, radii, width, steps,
+                             n_threads=n_threads, dt=dt, margin=margin)
+        s = out["settings"][name]
+        s["granularsap"] = g = _granularsap_figures(gs, bounds)
+        if "lammps" not in s:
+            continue
+        lam = s["lammps"]
+        neigh = lam.get("neigh", 0.0)
+        nm = neigh + lam.get("modify", 0.0)
+        s["ratios"] = {"all_neigh": _ratio(g["mean"], neigh),
+                       "grains_neigh": _ratio(g["grains_mean"], neigh),
+                       "all_neigh_modify": _ratio(g["mean"], nm),
+                       "all_neigh_modify_pair": _ratio(g["mean"], nm + lam.get("pair", 0.0))}
+        # the fastest of the runs of each code (a shared machine disturbs it less)
+        fast_nm = min(c.get("neigh", 0.0) + c.get("modify", 0.0) for c in s["lammps_chunks"])
+        s["fastest_chunk"] = {"granularsap": min(g["chunk_means"]),
+                              "granularsap_grains": min(g["chunk_grains"]),
+                              "lammps_neigh": min(c.get("neigh", 0.0) for c in s["lammps_chunks"]),
+                              "lammps_neigh_modify": fast_nm}
     return out
 
 
 def format_result(r):
     """The lines ``granularsap bench dem-loop`` prints for one result."""
     ms = 1e3
-    g = r["granularsap"]
-    lines = [f"dem-loop N={r['n']}: {r['steps']} steps after {r['settle']} of settling, "
-             f"{r['threads']} thread(s)",
-             f"  granularsap search + history per step: min {g['min'] * ms:.3f} ms, median "
-             f"{g['median'] * ms:.3f} ms, mean {g['mean'] * ms:.3f} ms (walls "
-             f"{g['walls_mean'] * ms:.3f}); {g['rebuilds']} list rebuilds, "
-             f"{g['contacts']} contacts + {g['wall_contacts']} on walls at the end, "
-             f"path {g['path']}"]
-    if "lammps" in r:
-        lam = r["lammps"]
+    start = f"after {r['settle']} of settling" if r["settle"] else "from the column"
+    lines = [f"dem-loop N={r['n']}: {r['steps']} steps {start}, {r['threads']} thread(s); "
+             "ms per step, means over the steps"]
+    for name, s in r["settings"].items():
+        g = s["granularsap"]
+        lines.append(f" {name}: {s['what']}")
+        lines.append(f"  granularsap: grains (search + history) {g['grains_mean'] * ms:.3f} "
+                     f"(median {g['grains_median'] * ms:.3f}), walls (search + history) "
+                     f"{g['walls_mean'] * ms:.3f}, both {g['mean'] * ms:.3f}; "
+                     f"{g['rebuilds']} list rebuilds, {g['contacts']} contacts + "
+                     f"{g['wall_contacts']} on walls at the end, path {g['path']}")
+        if "lammps" not in s:
+            continue
+        lam = s["lammps"]
+        nm = lam.get("neigh", 0.0) + lam.get("modify", 0.0)
         words = ", ".join(f"{k.capitalize()} {lam[k] * ms:.3f}" for k in
-                          ("neigh", "pair", "modify", "comm") if k in lam)
-        lines.append(f"  LAMMPS per step (its timers, mean): {words} ms; "
-                     f"{r['lammps_builds']} list builds, {r['lammps_contacts']} contacts at the "
+                          ("neigh", "modify", "pair", "comm", "other") if k in lam)
+        lines.append(f"  LAMMPS (its timers): {words}; Neigh + Modify {nm * ms:.3f}; "
+                     f"{s['lammps_builds']} list builds, {s['lammps_contacts']} contacts at the "
                      f"end; {'OPENMP' if r.get('lammps_omp') else 'serial'}")
-        lines.append(f"  ratio granularsap / LAMMPS Neigh: {r['ratio_neigh']:.2f}; "
-                     f"/ (Neigh + Pair): {r['ratio_neigh_pair']:.2f}")
-        lines.append(f"  grain contacts only (walls left out, as LAMMPS's Neigh leaves out its "
-                     f"walls): / Neigh {r['ratio_grains_neigh']:.2f}; / (Neigh + Pair): "
-                     f"{r['ratio_grains_neigh_pair']:.2f}")
-        f = r.get("fastest_chunk")
-        if f:
-            k = len(r["lammps_chunks"])
-            np_ = f["neigh_pair"]
-            lines.append(f"  fastest of {k} runs of {r['steps'] // k} steps (each code's own, "
-                         f"less sensitive to load): granularsap {f['granularsap'] * ms:.3f} ms "
-                         f"(grains {f['granularsap_grains'] * ms:.3f}), LAMMPS Neigh + Pair "
-                         f"{np_ * ms:.3f}; ratios "
-                         f"{f['granularsap'] / np_ if np_ else float('inf'):.2f}, grains "
-                         f"{f['granularsap_grains'] / np_ if np_ else float('inf'):.2f}")
-    else:
-        lines.append(f"  LAMMPS: not run ({r.get('lammps_missing')})")
+        q = s["ratios"]
+        lines.append(f"  ratios granularsap / LAMMPS: grains / Neigh {q['grains_neigh']:.2f}, "
+                     f"grains + walls / Neigh {q['all_neigh']:.2f}, grains + walls / (Neigh + "
+                     f"Modify) {q['all_neigh_modify']:.2f}, / (Neigh + Modify + Pair) "
+                     f"{q['all_neigh_modify_pair']:.2f}")
+        f = s["fastest_chunk"]
+        k = len(s["lammps_chunks"])
+        lines.append(f"  fastest of {k} runs of {r['steps'] // k} steps (each code's own): "
+                     f"granularsap grains {f['granularsap_grains'] * ms:.3f}, both "
+                     f"{f['granularsap'] * ms:.3f}; LAMMPS Neigh {f['lammps_neigh'] * ms:.3f}, "
+                     f"Neigh + Modify {f['lammps_neigh_modify'] * ms:.3f}")
+    if "lammps_missing" in r:
+        lines.append(f"  LAMMPS: not run ({r['lammps_missing']})")
+    fr = r.get("frame")
+    if fr:
+        g = fr["granularsap_steady"]
+        text = (f" one frame (the pour's start), min of {FRAME_REPEATS}: granularsap-steady "
+                f"{g['min'] * ms:.3f}")
+        lam = fr.get("lammps_rebuild")
+        if lam:
+            text += (f", lammps-rebuild (Neigh + Comm of run 10, neighbor 0.0 bin, check no) "
+                     f"{lam['min'] * ms:.3f} (Neigh {lam['neigh'] * ms:.3f}); ratio "
+                     f"{_ratio(g['min'], lam['min']):.2f}; same pairs: {fr['same_pairs']}")
+        lines.append(text)
+    if "lammps_missing" not in r:
+        lines.append(f"  LAMMPS's Modify holds: {r['modify_holds']}")
     return "\n".join(lines)
+
+
+def wants_lammps(peers=None, exclude=None):
+    """Whether ``--peers`` / ``--exclude`` leave LAMMPS in (any peer named ``lammps...``).
+
+    >>> wants_lammps(), wants_lammps("granularsap,lammps"), wants_lammps("granularsap")
+    (True, True, False)
+    >>> wants_lammps(exclude="lammps-rebuild")
+    False
+    """
+    def names(text):
+        return [w for w in str(text or "").replace(",", " ").split() if w]
+
+    if peers is not None and not any(w.startswith("lammps") for w in names(peers)):
+        return False
+    return not any(w.startswith("lammps") for w in names(exclude))
 
 
 def run_dem_loop(args):
@@ -362,6 +498,7 @@ def run_dem_loop(args):
     if settle < 0:
         raise ValueError(f"--settle must be at least 0, got {settle}")
     example = load_example()
+    lammps = wants_lammps(getattr(args, "peers", None), getattr(args, "exclude", None))
     machine = machine_description()
     load = machine.get("load_average")
     print(f"machine: {machine['cpu_model']}, {machine['usable_cores']} usable cores, "
@@ -370,14 +507,14 @@ def run_dem_loop(args):
     for n in sizes:
         t0 = time.perf_counter()
         r = dem_loop(n, steps=steps, settle=settle, n_threads=threads,
-                     seed=getattr(args, "seed", 0) or 0, example=example,
+                     seed=getattr(args, "seed", 0) or 0, example=example, lammps=lammps,
                      progress=lambda msg: print(msg, flush=True))
         r["wall_seconds"] = time.perf_counter() - t0
         results.append(r)
         print(format_result(r), flush=True)
     if getattr(args, "json", None):
         with open(args.json, "w") as fh:
-            json.dump({"schema": "granularsap-bench-dem-loop/1", "machine": machine,
+            json.dump({"schema": "granularsap-bench-dem-loop/2", "machine": machine,
                        "results": results}, fh, indent=1)
         print(f"wrote {args.json}")
     return 0
