@@ -875,7 +875,7 @@ class WallSearch:
             ints = [self._scratch(name, (k + 1,), np.int64)
                     for name in ("region", "elem", "kind", "fid", "f0", "f1", "gstart",
                                  "offsets", "order")]
-            slots = _tri._SLOTS * k
+            slots = _tri.SLOTS * k
             table = (self._scratch("hkey", (slots,), np.int64),
                      self._scratch("hdist", (slots,)),
                      self._scratch("hkind", (slots,), np.int64),

@@ -23,6 +23,7 @@ import contextlib
 import errno
 import os
 import socket
+import time
 
 __all__ = ["OutputBusyError", "lock_path", "output_lock"]
 
@@ -37,14 +38,20 @@ def lock_path(output) -> str:
 
 
 def _holder(fd) -> str:
-    """``' (pid N on HOST)'`` as the holder wrote it, or ``''``."""
-    try:
-        text = os.pread(fd, 200, 0).decode("utf-8", "replace").split()
-    except OSError:
-        return ""
-    if len(text) >= 2 and text[0].isdigit():
-        host = text[1]
-        return f" (pid {text[0]}{'' if host == socket.gethostname() else ' on ' + host})"
+    """``' (pid N on HOST)'`` as the holder wrote it, or ``''``.
+
+    A holder writes its line right after it takes the lock; a run refused in
+    between reads the file again for up to a tenth of a second."""
+    for _ in range(20):
+        try:
+            text = os.pread(fd, 200, 0).decode("utf-8", "replace")
+        except OSError:
+            return ""
+        words = text.split()
+        if text.endswith("\n") and len(words) >= 2 and words[0].isdigit():
+            host = words[1]
+            return f" (pid {words[0]}{'' if host == socket.gethostname() else ' on ' + host})"
+        time.sleep(0.005)
     return ""
 
 

@@ -216,8 +216,8 @@ def _before(a, b, t, kind, f0, f1, shifts, cand):
 
 #: hash slots per candidate row: enough for a table per chunk of spheres, a
 #: power of two at least twice the six edges and vertices of each triangle
-#: in reach of its largest sphere (load <= 1/2)
-_SLOTS = 24
+#: in reach of its largest sphere (load <= 1/2); walls.py sizes the scratch with it
+SLOTS = 24
 #: chunks of spheres of the de-duplication (each with its own table)
 _CHUNKS = 256
 #: Fibonacci hashing's multiplier (2**64 / golden ratio, as a signed int64)
@@ -248,7 +248,7 @@ def mesh_select(cand, x, h, tie, tri, rows, shifts, corners, face_edges, edges,
     element, kind, feature and image shift, into ``order`` from the group's
     first row.  Returns the number of groups ``g`` (``gstart[:g + 1]`` their
     rows) and of kept contacts (``offsets[:g + 1]`` their exclusive prefix
-    sums).  ``hkey``, ``hdist``, ``hkind``, ``hbest``: scratch, ``_SLOTS``
+    sums).  ``hkey``, ``hdist``, ``hkind``, ``hbest``: scratch, ``SLOTS``
     slots per candidate.  The rule (docs/walls.md): an edge or vertex point counts when no
     triangle around it is closer (by more than ``tie * h``) and none has a
     face contact (a vertex: nor an edge contact), once per edge or vertex
