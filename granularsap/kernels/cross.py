@@ -59,6 +59,14 @@ def _cell(x, lo, inv, dim):
     return np.int64(c)
 
 
+@ijit
+def _cell_range(lower, upper, b, lo, inv, dims):
+    """First and last grid cell of box ``b`` along each axis."""
+    return (_cell(lower[b, 0], lo[0], inv[0], dims[0]), _cell(upper[b, 0], lo[0], inv[0], dims[0]),
+            _cell(lower[b, 1], lo[1], inv[1], dims[1]), _cell(upper[b, 1], lo[1], inv[1], dims[1]),
+            _cell(lower[b, 2], lo[2], inv[2], dims[2]), _cell(upper[b, 2], lo[2], inv[2], dims[2]))
+
+
 @jit
 def extent(lower, upper, lo, hi, side):
     """Lowest lower corner, highest upper corner and mean side per axis (one pass)."""
@@ -98,12 +106,7 @@ def bin_boxes(lower, upper, rows, lo, inv, dims, start, members):
     n0, n1 = dims[1], dims[2]
     for k in range(rows.shape[0]):
         b = rows[k]
-        i0 = _cell(lower[b, 0], lo[0], inv[0], dims[0])
-        i1 = _cell(upper[b, 0], lo[0], inv[0], dims[0])
-        j0 = _cell(lower[b, 1], lo[1], inv[1], dims[1])
-        j1 = _cell(upper[b, 1], lo[1], inv[1], dims[1])
-        k0 = _cell(lower[b, 2], lo[2], inv[2], dims[2])
-        k1 = _cell(upper[b, 2], lo[2], inv[2], dims[2])
+        i0, i1, j0, j1, k0, k1 = _cell_range(lower, upper, b, lo, inv, dims)
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 for q in range(k0, k1 + 1):
@@ -113,12 +116,7 @@ def bin_boxes(lower, upper, rows, lo, inv, dims, start, members):
     fill = start[:-1].copy()
     for k in range(rows.shape[0]):
         b = rows[k]
-        i0 = _cell(lower[b, 0], lo[0], inv[0], dims[0])
-        i1 = _cell(upper[b, 0], lo[0], inv[0], dims[0])
-        j0 = _cell(lower[b, 1], lo[1], inv[1], dims[1])
-        j1 = _cell(upper[b, 1], lo[1], inv[1], dims[1])
-        k0 = _cell(lower[b, 2], lo[2], inv[2], dims[2])
-        k1 = _cell(upper[b, 2], lo[2], inv[2], dims[2])
+        i0, i1, j0, j1, k0, k1 = _cell_range(lower, upper, b, lo, inv, dims)
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 for q in range(k0, k1 + 1):
