@@ -9,7 +9,15 @@ The count is a *lower bound*, so a frame that fits is never refused:
 
 1. a cheap upper bound first: ``n (n - 1) / 2`` pairs (times the images a
    range wider than the cell can reach).  If even that fits in the memory
-   available, nothing more is done.  For more than 65,536 particles, the
+   available, nothing more is done.  A search (minimum image) checks after
+   planning its columns, which bound the pairs from above: every pair lies
+   in two columns of the plan's stencil, so half the sum over columns of
+   their particles times those of the stencil around them
+   (:func:`column_pair_bound`, O(columns)) is at least the pair count; if
+   that fits, nothing more is done; below a quarter of the memory read
+   less than a second before, the memory is not even read again (a kept
+   search's frames cost some 20 microseconds).  For more than 65,536
+   particles, the
    bound of step 2 on every k-th particle (16,384 of them), scaled up by
    ``(n / m)^2``, estimates the pairs; under a sixteenth of the memory
    available (sparse frames: nearly all), nothing more is done either;
@@ -42,13 +50,15 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import time
 
 import numpy as np
 
 from ._numba import jit
 from .periodic import perpendicular_widths
 
-__all__ = ["available_memory", "bytes_per_pair", "check_pair_memory", "pair_lower_bound"]
+__all__ = ["available_memory", "bytes_per_pair", "check_pair_memory", "column_pair_bound",
+           "pair_lower_bound"]
 
 #: relative shrink of the range against rounding in the engine's distance test
 _SHRINK = 1e-6
@@ -59,38 +69,73 @@ _MAX_CELLS = 1 << 18
 _SAMPLE = 16384
 #: at most this many cell offsets are tested
 _MAX_OFFSETS = 4_000_000
+#: a search's frame whose pairs are bounded from above by under 1/_ROOM_FACTOR
+#: of the memory read less than _REREAD seconds ago does not read it again (a
+#: read costs 0.1-0.2 ms beside running threads); (time, bytes) of the last read
+_ROOM_FACTOR = 4
+_REREAD = 1.0
+_LAST_READ = [None]
 
 
-def _meminfo():
+def _read(path):
+    """The bytes of a small file (``/proc``, ``/sys``), or None."""
     try:
-        with open("/proc/meminfo") as fh:
-            rows = dict(line.split(":", 1) for line in fh if ":" in line)
+        fd = os.open(path, os.O_RDONLY)
     except OSError:
         return None
     try:
-        avail = int(rows["MemAvailable"].split()[0]) * 1024
-    except (KeyError, ValueError, IndexError):
+        return os.read(fd, 1 << 16)
+    except OSError:
         return None
+    finally:
+        os.close(fd)
+
+
+def _field_kib(text, name):
+    """The value in KiB of ``name:`` in ``/proc/meminfo``'s ``text``, or None."""
+    at = text.find(name)
+    if at < 0:
+        return None
+    end = text.find(b"\n", at)
     try:
-        avail += int(rows["SwapFree"].split()[0]) * 1024
-    except (KeyError, ValueError, IndexError):
-        pass
-    return avail
+        return int(text[at + len(name):end if end >= 0 else None].split()[0])
+    except (ValueError, IndexError):
+        return None
+
+
+def _meminfo():
+    text = _read("/proc/meminfo")
+    if text is None:
+        return None
+    avail = _field_kib(text, b"MemAvailable:")
+    if avail is None:
+        return None
+    swap = _field_kib(text, b"SwapFree:")
+    return (avail + (swap or 0)) * 1024
+
+
+#: cgroup (limit, usage) files; a pair whose limit file is missing is dropped
+#: (it does not appear while the process runs), so later calls skip it
+_CGROUP_FILES = [("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                 ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                  "/sys/fs/cgroup/memory/memory.usage_in_bytes")]
 
 
 def _cgroup_room():
     """Bytes left under this process's cgroup memory limit, or None."""
-    pairs = (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
-             ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
-              "/sys/fs/cgroup/memory/memory.usage_in_bytes"))
-    for limit_path, usage_path in pairs:
-        try:
-            with open(limit_path) as fh:
-                limit = fh.read().strip()
-            with open(usage_path) as fh:
-                usage = int(fh.read().strip())
-        except (OSError, ValueError):
+    for pair in list(_CGROUP_FILES):
+        limit_path, usage_path = pair
+        limit = _read(limit_path)
+        if limit is None:
+            if not os.path.exists(limit_path):
+                _CGROUP_FILES.remove(pair)
             continue
+        usage = _read(usage_path)
+        try:
+            usage = int(usage.strip())
+        except (AttributeError, ValueError):
+            continue
+        limit = limit.strip()
         if limit.isdigit() and int(limit) < 1 << 60:
             return max(0, int(limit) - usage)
     return None
@@ -169,6 +214,53 @@ def _cell_counts(t, lo, inv, shape, periodic, counts):
             k = min(max(k, 0), shape[c] - 1)
             a[c] = k
         counts[a[0], a[1], a[2]] += 1.0
+
+
+@jit
+def _window_sums(occ, axis, layers, periodic, out):
+    """``out[a, b]`` = the sum of ``occ`` over ``2 * layers + 1`` cells along ``axis``
+    centred on ``(a, b)``: wrapped along a periodic axis (a cell reached twice counts
+    twice), cut at the ends of an open one."""
+    n0, n1 = occ.shape
+    size = n0 if axis == 0 else n1
+    other = n1 if axis == 0 else n0
+    for b in range(other):
+        for a in range(size):
+            s = 0.0
+            for o in range(-layers, layers + 1):
+                u = a + o
+                if periodic:
+                    u %= size
+                elif u < 0 or u >= size:
+                    continue
+                s += occ[u, b] if axis == 0 else occ[b, u]
+            if axis == 0:
+                out[a, b] = s
+            else:
+                out[b, a] = s
+
+
+@jit
+def column_pair_bound(start, nb0, nb1, layers0, layers1, pbc0, pbc1):
+    """An upper bound on the pairs of a column plan: ``start`` the first row of
+    each of ``nb0 * nb1`` columns (and the end), every pair within range being
+    in two columns at most ``layers0``, ``layers1`` columns apart (the plan's wide
+    stencil).  Half the sum over columns of its particles times those of its
+    stencil (itself included), so each pair counts at least once."""
+    occ = np.empty((nb0, nb1))
+    for c in range(nb0 * nb1):
+        occ[c // nb1, c % nb1] = start[c + 1] - start[c]
+    l0 = layers0 if not pbc0 else min(layers0, nb0)
+    l1 = layers1 if not pbc1 else min(layers1, nb1)
+    rows = np.empty((nb0, nb1))
+    _window_sums(occ, 0, l0, pbc0, rows)
+    near = np.empty((nb0, nb1))
+    _window_sums(rows, 1, l1, pbc1, near)
+    total = 0.0
+    for a in range(nb0):
+        for b in range(nb1):
+            total += occ[a, b] * near[a, b]
+    return 0.5 * total
 
 
 def _grid(t, cell, pbc, reach, n, cells):
@@ -270,11 +362,11 @@ def _gib(b):
     return f"{b / 2 ** 30:.3g} GiB"
 
 
-def check_pair_memory(search, t, cell, pbc, reach, labels=None):
+def check_pair_memory(search, t, cell, pbc, reach, labels=None, columns=None):
     """Raise :class:`MemoryError` when a frame's pairs cannot fit in memory.
 
     Called once per build of a search, before any pair is searched (see the
-    module docstring for the bound).
+    module docstring for the bound), after its column plan (``columns``).
 
     Parameters
     ----------
@@ -287,6 +379,11 @@ def check_pair_memory(search, t, cell, pbc, reach, labels=None):
         The smallest range of any pair (``2 * min(radii) + skin``; the cutoff).
     labels : (n,) array of int, optional
         Clump labels: pairs inside a clump are not pairs.
+    columns : tuple, optional
+        ``(start, nb0, nb1, layers0, layers1)`` of the search's column plan
+        (``column_pair_bound``): under the minimum image, when that upper
+        bound on the pairs fits in the memory available, so does the lower
+        bound, and nothing more is computed (module docstring, step 1).
 
     Raises
     ------
@@ -316,7 +413,21 @@ def check_pair_memory(search, t, cell, pbc, reach, labels=None):
         images = np.prod([2 * math.ceil(reach / width[c]) + 1 if pbc[c] else 1
                           for c in range(3)])
         upper = n * (n + 1) / 2.0 * images
+    bound_above = None
+    if columns is not None and not all_images:
+        # every pair (so every pair the lower bound counts) is in two columns of
+        # the plan's wide stencil: an upper bound in O(columns)
+        start, nb0, nb1, layers0, layers1 = columns
+        bound_above = column_pair_bound(start, int(nb0), int(nb1), int(layers0),
+                                        int(layers1), bool(pbc[0]), bool(pbc[1]))
+        upper = min(upper, bound_above)
+        last = _LAST_READ[0]
+        if (last is not None and time.monotonic() - last[0] < _REREAD
+                and upper * per * _ROOM_FACTOR <= last[1]):
+            return  # far under what was available a moment ago
     avail = available_memory()
+    if avail is not None:
+        _LAST_READ[0] = (time.monotonic(), avail)
     if avail is None or upper * per <= avail:
         return
     if n > 4 * _SAMPLE:

@@ -572,7 +572,6 @@ class _Search:
         bad, extent = self._kern.wrap(positions, hinv, cell, diag, pbc, self._t, self._k,
                                       self._w, int(min(_MAX_CHUNKS, max(1, n // _CHUNK))))
         self._raise_bad(bad)
-        _memory.check_pair_memory(self, self._t, cell, pbc, 2.0 * float(rad.min()) + skin, labels)
         t, w = self._t, self._w
         extent = extent + reach_max + self._margin
         guard = _GUARD * extent + np.finfo(np.float64).tiny
@@ -654,6 +653,10 @@ class _Search:
         if hist.shape != (segments, ncol):
             hist = self._hist = np.empty((segments, ncol), np.int64)
         self._kern.counting_sort(self._col, prev, ncol, start, perm, hist)
+        # refused before any pair is searched: the plan's columns bound the pairs
+        # at once; only a frame they do not show to fit takes the full bound
+        _memory.check_pair_memory(self, t, cell, pbc, 2.0 * float(rad.min()) + skin, labels,
+                                  columns=(start, nb0, nb1, layers_big[0], layers_big[1]))
         self._kern.sort_columns(start, ncol, perm, t, 2, fresh)
         self._perm_buf = prev if not fresh else np.empty(n, np.int64)
         self._perm = perm

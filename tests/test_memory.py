@@ -108,6 +108,44 @@ class TestLowerBound:
             assert out >= bytes_per_pair(q) * s.stats["pairs"]
 
 
+class TestColumnBound:
+    """The column plan's upper bound (what lets a search skip the lower bound) is
+    never below the true pair count, whatever the cell, the clustering or the
+    spread of radii (two levels: the wide stencil)."""
+
+    @settings(max_examples=25, deadline=None)
+    @given(seed=st.integers(0, 2**31 - 1), n=st.integers(2, 300),
+           kind=st.sampled_from(["open", "cube", "slab", "triclinic"]),
+           clustered=st.booleans(), spread=st.booleans())
+    def test_never_below_the_brute_force_count(self, seed, n, kind, clustered, spread):
+        rng = np.random.default_rng(seed)
+        matrix, pbc = _cell(kind, rng)
+        x = rng.uniform(0, 4.0, (n, 3))
+        if clustered:
+            x = x[:1] + 0.1 * (x - x[:1])
+        rad = rng.uniform(0.05, 0.6 if spread else 0.15, n)
+        if spread:
+            rad[rng.random(n) < 0.9] = 0.05
+        seen = []
+
+        def spy(search, t, cell, pbc_, reach, labels=None, columns=None):
+            seen.append(columns)
+
+        box = None if matrix is None else granularsap.Cell(matrix, pbc)
+        search = granularsap.ContactSearch(skin=0.05)
+        search._small_max = 0  # the general path, which plans and checks
+        search._levels = 0.05 if spread else False
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(granularsap._memory, "check_pair_memory", spy)
+            search.update(x, rad, box)
+        start, nb0, nb1, l0, l1 = seen[-1]
+        bound = granularsap._memory.column_pair_bound(start, nb0, nb1, l0, l1,
+                                                      bool(pbc[0]), bool(pbc[1]))
+        pairs, _ = brute_image_pairs(x, 0.05, matrix, pbc, radii=rad)
+        assert len(pairs) == search.stats["pairs"]
+        assert bound >= len(pairs)
+
+
 def _dense_size(avail, factor):
     """Particles in a unit cube whose pairs within 0.5 need ``factor`` x ``avail``
     bytes at 24 bytes per pair (0.5236 of all pairs are within 0.5)."""
