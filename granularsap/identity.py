@@ -36,8 +36,6 @@ __all__ = ["ContactIdentity", "PairIdentity", "as_ids"]
 _PARALLEL_MIN = 50000
 _NO_SHIFTS = np.zeros((0, 3), np.int64)
 _NO_ROWS = np.zeros(0, np.int64)
-_NO_X = np.zeros((0, 3))
-_NO_R = np.zeros(0)
 
 
 def as_ids(ids, n, name="ids"):
@@ -102,27 +100,40 @@ class _Rows:
         s = self._sets[1 - self._set]
         s["prev"] = _grow(s.get("prev"), k, np.int64)
         prev = s["prev"][:k]
-        fill_rows(prev)
-        bounds = _bounds(k_prev, chunks)
-        counts = np.zeros(chunks, np.int64)
-        kernels.unmatched_rows(matched, bounds, counts, _NO_ROWS, False)
-        m = int(counts.sum())
-        offsets = np.zeros(chunks, np.int64)
-        offsets[1:] = np.cumsum(counts)[:-1]
-        s["ended"] = _grow(s.get("ended"), m, np.int64)
-        ended = s["ended"][:m]
-        kernels.unmatched_rows(matched, bounds, offsets, ended, True)
+        ended = fill_rows(prev, s)
+        if ended is None:
+            ended = self._unmatched(matched, k_prev, chunks, kernels, s, "ended")
         self._set = 1 - self._set
         self.previous_rows, self.ended_rows = prev, ended
         self._k_prev, self._k = k_prev, k
         self._new = None
 
     def _matched(self, k_prev):
+        """Flags of the previous rows found, zeroed, in a buffer padded to whole
+        words of eight rows (padding set: ``unmatched_words`` reads words)."""
         s = self._sets[1 - self._set]
-        s["matched"] = _grow(s.get("matched"), k_prev, np.uint8)
+        padded = k_prev + (-k_prev) % 8
+        s["matched"] = _grow(s.get("matched"), padded, np.uint8)
         matched = s["matched"][:k_prev]
         matched[:] = 0
+        s["matched"][k_prev:padded] = 1
         return matched
+
+    def _unmatched(self, matched, k_prev, chunks, kernels, s, name):
+        """The rows ``q < k_prev`` with ``matched[q] == 0``, ascending, in buffer
+        ``s[name]`` (two passes of ``unmatched_words``)."""
+        padded = k_prev + (-k_prev) % 8
+        flags = s["matched"][:padded]
+        bounds = _bounds(padded // 8, chunks) * 8
+        counts = np.zeros(chunks, np.int64)
+        kernels.unmatched_words(flags, bounds, counts, _NO_ROWS, False)
+        m = int(counts.sum())
+        offsets = np.zeros(chunks, np.int64)
+        offsets[1:] = np.cumsum(counts)[:-1]
+        s[name] = _grow(s.get(name), m, np.int64)
+        out = s[name][:m]
+        kernels.unmatched_words(flags, bounds, offsets, out, True)
+        return out
 
     def detach(self):
         """Replace ``previous_rows`` and ``ended_rows`` by copies (they then stay
@@ -284,12 +295,13 @@ class ContactIdentity(_Rows):
                                  f"both {keys[second].tolist()}")
             matched = self._matched(k_prev)
 
-            def fill_rows(out):
+            def fill_rows(out, _):
                 if k_prev == 0 or k == 0:
                     out[:] = -1
-                    return
+                    return None
                 kernels.match_keys(keys, prev, self._shift, self._slots, _bounds(k, chunks),
                                    out, matched)
+                return None
 
             self._publish(k, k_prev, fill_rows, matched, chunks, kernels)
         self._prev_keys, self._slots, self._shift = keys, slots, shift
@@ -341,10 +353,8 @@ class PairIdentity(_Rows):
         self._dense = np.zeros(0, np.int64)
         self._hkeys = np.zeros(0, np.int64)
         self._hvals = np.zeros(0, np.int64)
-        self._groups = [[None, None], [None, None]]  # gpos, ghub: previous, this call
-        self._cut = None  # the previous pairs' groups, cut by the last call
-        self._far = None  # the previous call's range, when the caller told it
-        self._hub_start = self._hub_groups = None
+        self._todo = None  # this call's pairs the in-step pass left
+        self._table = np.zeros((0, 3), np.int64)  # hash table of the previous rows left
         self._clumps = None
         self.clump_pairs = None
         self._entries = None  # (list, entries) of the previous call, when increasing
@@ -411,32 +421,6 @@ class PairIdentity(_Rows):
         return jumps
 
     # --------------------------------------------------------------- pairs
-    def _group_buffers(self, which, k):
-        buf = self._groups[which]
-        buf[0] = _grow(buf[0], k + 1, np.int64)
-        buf[1] = _grow(buf[1], k, np.int64)
-        return buf
-
-    def _index(self, pairs, n_prev, kernels, chunks):
-        """Groups of the previous pairs and their CSR by hub (kernels module docstring),
-        cut by the last call's matching pass or here."""
-        k = len(pairs)
-        if self._cut is not None:
-            bounds, counts = self._cut
-            gpos, ghub = self._groups[0]
-        else:
-            gpos, ghub = self._group_buffers(0, k)
-            bounds = _bounds(k, chunks)
-            counts = np.zeros(chunks, np.int64)
-            kernels.group_pairs(pairs, bounds, gpos, ghub, counts)
-        self._hub_start = _grow(self._hub_start, n_prev + 1, np.int64)
-        hub_start = self._hub_start[:n_prev + 1]
-        n_groups = int(counts.sum())
-        self._hub_groups = _grow(self._hub_groups, n_groups, np.int64, (4,))  # 32 bytes
-        hub_groups = self._hub_groups[:n_groups]
-        g = kern.hub_index(bounds, counts, gpos, ghub, k, n_prev, hub_start, hub_groups)
-        return gpos[:g + 1], ghub[:g], hub_start, hub_groups
-
     def update(self, pairs, n, *, ids=None, shifts=None, positions=None, cell=None,
                pbc=None, labels=None, radii=None, skin=0.0, borrow=False, entries=None):
         """Match this call's pairs to the previous call's.
@@ -463,13 +447,10 @@ class PairIdentity(_Rows):
         labels : (n,) int64 ndarray, optional
             Clump label of every particle: clump pairs get their identity too.
         radii : (n,) ndarray of float, optional
-            A hint (without ``shifts``): ``pairs`` holds every pair within
-            ``radii[i] + radii[j] + skin`` of each other under the minimum image
-            of ``cell`` (with ``positions``), as the searches' results do.  Then
-            a pair whose particles were farther apart in the previous call is
-            known to be new without a search.
+            Accepted for callers that pass the searches' ranges; the matching
+            does not need them.
         skin : float, optional
-            Added to ``radii[i] + radii[j]`` (with ``radii``).
+            Likewise (with ``radii``).
         borrow : bool, optional
             Keep ``pairs`` and ``shifts`` (and ``entries``) without copying them
             (the caller keeps them unchanged until the next call).
@@ -508,33 +489,21 @@ class PairIdentity(_Rows):
             same_list = (entries is not None and prev_entries is not None and m is None
                          and int(n) == prev[2] and prev_entries[0] == entries[0]
                          and len(prev_entries[1]) == k_prev and len(entries[1]) == k)
-            if self.shifts and not same_list:
-                jumps = self._jumps(positions, cell, pbc, m, prev)
 
-            def fill_rows(out):
+            def fill_rows(out, sets):
                 self.matched_by = "nothing"
                 if k_prev == 0 or k == 0:
                     out[:] = -1
-                    self._cut = None  # the next call cuts this call's pairs itself
-                    return
+                    return None
                 self.matched_by = "entries"
                 if same_list and self._by_entry(entries[1], prev_entries[1], out, matched,
                                                 kernels, chunks):
-                    self._cut = None
-                    return
+                    return None
                 self.matched_by = "pairs"
-                index = self._index(prev[0], prev[2], kernels, chunks)
-                far = self._far if self._far is not None else (_NO_X, _NO_R, _NO_R, 0.0)
-                bounds = _bounds(k, chunks)
-                counts = np.zeros(chunks, np.int64)
-                gpos, ghub = self._group_buffers(1, k)
-                kernels.match_pairs(pairs, _NO_ROWS if m is None else m, m is not None,
-                                    prev[2], self.shifts, shifts,
-                                    jumps if self.shifts else _NO_SHIFTS, prev[0], prev[1],
-                                    *index, *far, bounds, out, matched, gpos, ghub, counts)
-                # this call's groups serve the next call
-                self._groups.reverse()
-                self._cut = (bounds, counts)
+                jumps = (self._jumps(positions, cell, pbc, m, prev) if self.shifts
+                         else _NO_SHIFTS)
+                return self._match(pairs, m, prev, shifts, jumps, out, matched, kernels, chunks,
+                                   sets)
 
             self._publish(k, k_prev, fill_rows, matched, chunks, kernels)
             self._track_clumps(pairs, labels)
@@ -547,7 +516,6 @@ class PairIdentity(_Rows):
         keep = None
         if self.shifts and positions is not None:
             keep = np.array(positions, dtype=np.float64)
-        self._far = self._range_hint(positions, cell, pbc, radii, skin)
         self._prev = (pairs, shifts, int(n), None if ids is None else ids.copy(), keep)
         return self.previous_rows
 
@@ -577,23 +545,38 @@ class PairIdentity(_Rows):
         kernels.entries_rising(e, bounds, rising)
         return bool(rising.all()) and self._joins_rise(e, bounds)
 
-    def _range_hint(self, positions, cell, pbc, radii, skin):
-        """What ``_apart`` needs of this call for the next (None: no hint): minimum
-        image over an orthorhombic or open cell only."""
-        if self.shifts or radii is None or positions is None or not len(positions):
-            return None
-        lengths = np.zeros(3)
-        if cell is not None:
-            cell = np.asarray(cell, dtype=np.float64)
-            if np.any(cell - np.diag(np.diag(cell))):
-                return None
-            lengths = np.where(np.asarray(pbc, bool), np.abs(np.diag(cell)), 0.0)
-        x = np.array(positions, dtype=np.float64)
-        r = np.array(radii, dtype=np.float64)
-        # rounding of the search's and of this test's distances, generously
-        tol = 1e-9 * (2.0 * float(r.max()) + abs(skin) + float(lengths.max())
-                      + float(np.abs(x).max()))
-        return x, r, lengths, float(skin) + tol
+    def _match(self, pairs, m, prev, shifts, jumps, out, matched, kernels, chunks, sets):
+        """The general matching (``kernels/identity.py``): pass 1 follows the
+        previous list with a cursor, pass 2 matches what it left through a hash
+        table of the previous rows left.  Returns the ended rows."""
+        k = len(pairs)
+        prev_pairs = prev[0]
+        k_prev = len(prev_pairs)
+        bounds = _bounds(k, chunks)
+        self._todo = todo = _grow(self._todo, k, np.int64)
+        todo_counts = np.zeros(chunks, np.int64)
+        reach = int(min(k_prev, 4096 + 2 * abs(k - k_prev)))
+        mapped = m is not None
+        m = m if mapped else _NO_ROWS
+        step = getattr(kernels, "match_in_step" + ("_ids" if mapped else "")
+                       + ("_shifts" if self.shifts else ""))
+        step(pairs, m, prev[2], shifts, jumps, prev_pairs, prev[1], bounds, reach, out, matched,
+             todo, todo_counts)
+        left = self._unmatched(matched, k_prev, chunks, kernels, sets, "left")
+        self._last_counts = (int(todo_counts.sum()), len(left))
+        sets["ended"] = _grow(sets.get("ended"), len(left), np.int64)
+        ended = sets["ended"]
+        if not len(left) or not int(todo_counts.sum()):
+            ended[:len(left)] = left
+            return ended[:len(left)]
+        size = 1 << max(4, int(2 * len(left) - 1).bit_length())
+        if len(self._table) != size:
+            self._table = np.empty((size, 3), np.int64)
+        shift = 64 - (size.bit_length() - 1)
+        e = kern.match_rest(pairs, m, mapped, prev[2], self.shifts, shifts, jumps, prev_pairs,
+                            prev[1], bounds, todo, todo_counts, left, shift, self._table, out,
+                            matched, ended)
+        return ended[:e]
 
     # -------------------------------------------------------------- clumps
     def _track_clumps(self, pairs, labels):

@@ -1,32 +1,33 @@
 """Contact identity between two calls: which row of the previous result each
 row of this result continues.
 
-Particle pairs (``match_pairs``)
---------------------------------
-Both pair lists come from the same search, which writes the pairs of one
-particle (the "source" of a sweep over one stencil column) one after another,
-in an order that moves little between calls.  Each list is cut into *groups*:
-maximal runs of consecutive pairs that share one particle, the group's *hub*
-(a new group takes as hub the particle it shares with the next pair, else its
-first; ``group_pairs``, or the matching pass of the call before for its own
-list).  The previous list's groups are also sorted by hub (``hub_index``, a
-counting sort over particles), so that every particle's groups are one range
-of ``hub_groups`` (each entry the group and its first and last rows plus one, on
-one cache line).
+Particle pairs (``match_in_step``, ``match_rest``)
+-------------------------------------------------
+Both pair lists come from the same search, which writes them in an order that
+moves little between calls (column by column, the pairs of one particle one
+after another), so most pairs of this call sit where the previous list had
+them, one row after the pair found before.  Each pair is written from its
+lower previous row (``_canon``: the two particles mapped to the previous
+call's rows by ``m``, the shift negated when they swap), and two passes find
+its previous row:
 
-A pair of this call is mapped to the previous call's rows of its two
-particles (``m``, from the ids).  When a group of this list starts, its hub
-is looked for among the next few previous groups after the last one used
-(the two lists follow one order); inside a group, each pair is looked for
-from where the last pair was found, then in the whole group.  A pair not
-found there (its partner moved to another column, the search chose the other
-source, or the pair is new) scans the other previous groups of its hub, and
-the order is followed from where it was found, then the groups of its other
-particle.  Continuing pairs in step with the previous list cost a few
-sequential reads each; a pair that changed group or is new costs the scan of
-its two particles' groups (random accesses).  O(pairs + particles) per call.
-The answer does not depend on how the list is split between threads: every
-pair has at most one previous row.
+1. ``match_in_step``: a cursor follows the previous list.  A pair is looked
+   for at the cursor, then on both sides of it, nearest first, up to
+   ``_NEAR`` rows; found, the cursor moves past it.  After ``_LOST`` misses in
+   a row the cursor is looked for again ``_RESYNC`` rows around.  Each chunk
+   of rows places its cursor by finding one of its first pairs near its
+   share of the previous list, so chunks run in parallel.  Pairs in step
+   (about 97 % of an md-liquid step) cost one comparison of two sequential
+   reads; the others cost at most ``2 _NEAR`` comparisons in cache.
+2. ``match_rest``: the pairs pass 1 did not find (their particles crossed a
+   column, or they are new) against the previous rows it did not find,
+   through an open-addressing hash table of the latter.  A continuing pair
+   missed by pass 1 is always among those rows (a previous row is the row of
+   one pair only), so the answer is exact and does not depend on how the
+   rows were chunked or on the thread count.
+
+O(pairs + particles) per call, streaming reads but for the few pairs of
+pass 2.
 
 With every periodic image (``with_shift``), a pair is the same when its two
 particles and its lattice shift are: the current shift, corrected by the
@@ -121,230 +122,267 @@ def map_ids_hashed(prev_ids, ids, shift, keys, vals, m):
     return -1, -1
 
 
-# --------------------------------------------------------- pair groups
-
-@ijit
-def _has(pairs, r, x):
-    return pairs[r, 0] == x or pairs[r, 1] == x
-
-
-@pjit
-def group_pairs(pairs, bounds, gpos, ghub, counts):
-    """Cut ``pairs`` into groups sharing one particle (module docstring): chunk
-    ``c`` of rows ``bounds[c]:bounds[c + 1]`` writes its groups' first rows and
-    hubs from ``gpos[bounds[c]]``, ``ghub[bounds[c]]`` and their number to
-    ``counts[c]``."""
-    for c in numba.prange(bounds.shape[0] - 1):
-        lo = bounds[c]
-        end = bounds[c + 1]
-        g = lo
-        h = np.int64(-1)
-        for r in range(lo, end):
-            x = pairs[r, 0]
-            y = pairs[r, 1]
-            if x == h or y == h:
-                continue
-            h = x
-            if r + 1 < end and not _has(pairs, r + 1, x) and _has(pairs, r + 1, y):
-                h = y
-            gpos[g] = r
-            ghub[g] = h
-            g += 1
-        counts[c] = g - lo
-
-
-@jit
-def hub_index(bounds, counts, gpos, ghub, k, n_rows, hub_start, hub_groups):
-    """Compact the chunks' groups into ``gpos`` (their first rows, then ``k``) and sort
-    them by hub: the groups of particle ``h`` are
-    ``hub_groups[hub_start[h]:hub_start[h + 1]]``, rows ``(group, first row, end
-    row)``.  Returns the group count."""
-    g = 0
-    for c in range(counts.shape[0]):
-        lo = bounds[c]
-        for t in range(counts[c]):
-            gpos[g] = gpos[lo + t]
-            ghub[g] = ghub[lo + t]
-            g += 1
-    gpos[g] = k
-    hub_start[:] = 0
-    for t in range(g):
-        hub_start[ghub[t] + 1] += 1
-    for h in range(n_rows):
-        hub_start[h + 1] += hub_start[h]
-    for t in range(g):
-        h = ghub[t]
-        u = hub_start[h]
-        hub_groups[u, 0] = t
-        hub_groups[u, 1] = gpos[t]
-        hub_groups[u, 2] = gpos[t + 1]
-        hub_start[h] += 1
-    for h in range(n_rows, 0, -1):
-        hub_start[h] = hub_start[h - 1]
-    hub_start[0] = 0
-    return g
-
-
 # ------------------------------------------------------------- matching
 
 @ijit
-def _same(prev_pairs, prev_shifts, q, pa, pb, with_shift, s0, s1, s2):
-    """Whether previous row ``q`` is the pair ``(pa, pb)`` with shift ``s`` (from
-    ``pa`` to ``pb``)."""
-    p0 = prev_pairs[q, 0]
-    p1 = prev_pairs[q, 1]
+def _canon(a, b, with_shift, s0, s1, s2):
+    """``(lo, hi, t0, t1, t2)``: the pair ``(a, b)`` with shift ``s`` (from ``a`` to
+    ``b``) written from its lower row (the shift negated when swapped; a row's
+    own image by the lexicographically positive of ``+-s``)."""
     if not with_shift:
-        return (p0 == pa and p1 == pb) or (p0 == pb and p1 == pa)
-    t0 = prev_shifts[q, 0]
-    t1 = prev_shifts[q, 1]
-    t2 = prev_shifts[q, 2]
-    if p0 == pa and p1 == pb and t0 == s0 and t1 == s1 and t2 == s2:
-        return True
-    return p0 == pb and p1 == pa and t0 == -s0 and t1 == -s1 and t2 == -s2
+        if a <= b:
+            return a, b, s0, s1, s2
+        return b, a, s0, s1, s2
+    if a > b or (a == b and (s0 < 0 or (s0 == 0 and (s1 < 0 or (s1 == 0 and s2 < 0))))):
+        return b, a, -s0, -s1, -s2
+    return a, b, s0, s1, s2
 
 
 @ijit
-def _scan(hub, skip, pa, pb, prev_pairs, prev_shifts, gpos, hub_start, hub_groups,
-          with_shift, s0, s1, s2):
-    """``(row, group)`` of ``(pa, pb, s)`` among the previous groups of ``hub`` but
-    ``skip``, or ``(-1, -1)``."""
-    for t in range(hub_start[hub], hub_start[hub + 1]):
-        g = hub_groups[t, 0]
-        if g == skip:
+def _prev_key(prev_pairs, prev_shifts, with_shift, q):
+    t0 = t1 = t2 = np.int64(0)
+    if with_shift:
+        t0 = prev_shifts[q, 0]
+        t1 = prev_shifts[q, 1]
+        t2 = prev_shifts[q, 2]
+    return _canon(prev_pairs[q, 0], prev_pairs[q, 1], with_shift, t0, t1, t2)
+
+
+@ijit
+def _is(prev_pairs, prev_shifts, with_shift, q, lo, hi, s0, s1, s2):
+    """Whether previous row ``q`` is the pair ``(lo, hi, s)`` (canonical)."""
+    a = prev_pairs[q, 0]
+    b = prev_pairs[q, 1]
+    if not with_shift:
+        return (a == lo and b == hi) or (a == hi and b == lo)
+    p0, p1, t0, t1, t2 = _prev_key(prev_pairs, prev_shifts, with_shift, q)
+    return p0 == lo and p1 == hi and t0 == s0 and t1 == s1 and t2 == s2
+
+
+@ijit
+def _key_of(pairs, m, mapped, n_prev, with_shift, shifts, jumps, r):
+    """This call's row ``r`` in the previous call's rows, canonical (``_canon``), or
+    ``lo = -1`` when a particle is new."""
+    a = pairs[r, 0]
+    b = pairs[r, 1]
+    if mapped:
+        pa = m[a]
+        pb = m[b]
+    else:
+        pa = a if a < n_prev else np.int64(-1)
+        pb = b if b < n_prev else np.int64(-1)
+    s0 = s1 = s2 = np.int64(0)
+    if pa < 0 or pb < 0:
+        return np.int64(-1), np.int64(-1), s0, s1, s2
+    if with_shift:
+        s0 = shifts[r, 0] + jumps[b, 0] - jumps[a, 0]
+        s1 = shifts[r, 1] + jumps[b, 1] - jumps[a, 1]
+        s2 = shifts[r, 2] + jumps[b, 2] - jumps[a, 2]
+    return _canon(pa, pb, with_shift, s0, s1, s2)
+
+
+#: previous rows searched on each side of the cursor, nearest first
+_NEAR = 64
+#: misses in a row after which the cursor is looked for again, and how far
+_LOST = 24
+_RESYNC = 1024
+#: pairs tried when a chunk looks for its first position in the previous list
+_ANCHORS = 8
+
+
+@ijit
+def _find_near(prev_pairs, prev_shifts, with_shift, g, reach, lo, hi, s0, s1, s2):
+    """The previous row of ``(lo, hi, s)`` within ``reach`` rows of ``g``, nearest
+    first, or -1."""
+    k_prev = prev_pairs.shape[0]
+    for d in range(reach + 1):
+        u = g + d
+        if 0 <= u < k_prev and _is(prev_pairs, prev_shifts, with_shift, u, lo, hi, s0, s1,
+                                   s2):
+            return u
+        u = g - d - 1
+        if 0 <= u < k_prev and _is(prev_pairs, prev_shifts, with_shift, u, lo, hi, s0, s1,
+                                   s2):
+            return u
+    return np.int64(-1)
+
+
+@ijit
+def _in_step_chunk(c, pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs,
+                   prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts):
+    """Chunk ``c`` of ``match_in_step`` (``mapped`` and ``with_shift`` given as
+    constants by each kernel, so that their branches compile away)."""
+    k = pairs.shape[0]
+    k_prev = prev_pairs.shape[0]
+    lo_r = bounds[c]
+    end = bounds[c + 1]
+    nt = lo_r
+    q = np.int64(0)
+    if k > 0:
+        q = (lo_r * k_prev) // k
+    for t in range(min(_ANCHORS, end - lo_r)):
+        lo, hi, s0, s1, s2 = _key_of(pairs, m, mapped, n_prev, with_shift, shifts, jumps,
+                                     lo_r + t)
+        if lo < 0:
             continue
-        for q in range(hub_groups[t, 1], hub_groups[t, 2]):
-            if _same(prev_pairs, prev_shifts, q, pa, pb, with_shift, s0, s1, s2):
-                return q, g
-    return np.int64(-1), np.int64(-1)
-
-
-@ijit
-def _apart(x, rad, lengths, pa, pb, slack):
-    """Whether previous rows ``pa``, ``pb`` were farther apart than
-    ``rad[pa] + rad[pb] + slack`` (minimum image over the axes of length > 0)."""
-    d2 = 0.0
-    for c in range(3):
-        d = x[pb, c] - x[pa, c]
-        if lengths[c] > 0:
-            d -= lengths[c] * np.rint(d / lengths[c])
-        d2 += d * d
-    reach = rad[pa] + rad[pb] + slack
-    return d2 > reach * reach
-
-
-#: entries of the previous group tried from where the last pair was found
-_WINDOW = 4
-#: previous groups tried after the last one used when a group starts
-_LOOKAHEAD = 4
+        u = _find_near(prev_pairs, prev_shifts, with_shift, q, reach, lo, hi, s0, s1, s2)
+        if u >= 0:
+            q = max(u - t, np.int64(0))
+            break
+    misses = 0
+    for r in range(lo_r, end):
+        prev_rows[r] = -1
+        lo, hi, s0, s1, s2 = _key_of(pairs, m, mapped, n_prev, with_shift, shifts, jumps, r)
+        if lo < 0:
+            continue
+        u = np.int64(-1)
+        if q < k_prev and _is(prev_pairs, prev_shifts, with_shift, q, lo, hi, s0, s1, s2):
+            u = q  # in step: the pair after the last one found
+        else:
+            for d in range(1, _NEAR):
+                v = q + d
+                if v < k_prev and _is(prev_pairs, prev_shifts, with_shift, v, lo, hi, s0, s1,
+                                      s2):
+                    u = v
+                    break
+                v = q - d
+                if v >= 0 and _is(prev_pairs, prev_shifts, with_shift, v, lo, hi, s0, s1, s2):
+                    u = v
+                    break
+        if u < 0 and misses >= _LOST:
+            u = _find_near(prev_pairs, prev_shifts, with_shift, q, _RESYNC, lo, hi, s0, s1,
+                           s2)
+            misses = 0
+        if u >= 0:
+            prev_rows[r] = u
+            matched[u] = 1
+            q = u + 1
+            misses = 0
+        else:
+            todo[nt] = r
+            nt += 1
+            misses += 1
+    todo_counts[c] = nt - lo_r
 
 
 @pjit
-def match_pairs(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, prev_shifts,
-                gpos, ghub, hub_start, hub_groups, far_x, far_r, far_len, far_slack, bounds,
-                prev_rows, matched, cur_gpos, cur_ghub, cur_counts):
-    """``prev_rows[r]``: the previous row of pair ``r`` or -1, and ``matched[q] = 1``
-    for every previous row found (module docstring).  ``m`` maps rows to previous
-    rows when ``mapped``, else a row is its own previous row below ``n_prev``.
-    Chunk ``c`` takes rows ``bounds[c]:bounds[c + 1]``, and cuts them into groups
-    for the next call as ``group_pairs`` does (``cur_gpos``, ``cur_ghub``,
-    ``cur_counts``).  With previous positions ``far_x`` (else empty), a pair
-    not in step whose particles were farther apart than their radii ``far_r``
-    plus ``far_slack`` (``_apart``) is new without a scan: the previous list
-    held every pair within that range."""
-    n_groups = ghub.shape[0]
-    far = far_x.shape[0] > 0
+def match_in_step(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds, reach,
+                  prev_rows, matched, todo, todo_counts):
+    """Pass 1 of the pair matching (module docstring), particles by row, no shifts:
+    the pairs of this call found near a cursor that follows the previous list.
+    ``prev_rows[r]`` is the previous row of pair ``r``, or -1; a pair not found
+    whose particles both existed is written to ``todo`` (chunk ``c`` from
+    ``bounds[c]``, their number to ``todo_counts[c]``) for pass 2
+    (``match_rest``); ``matched[q] = 1`` for every previous row found.  Chunk
+    ``c`` (rows ``bounds[c]:bounds[c + 1]``) places its cursor by finding one of
+    its first pairs within ``reach`` rows of its share of the previous list."""
     for c in numba.prange(bounds.shape[0] - 1):
-        lo = bounds[c]
-        end = bounds[c + 1]
-        cg = lo
-        ch = np.int64(-1)
-        h = np.int64(-1)  # hub of the current group (a previous row)
-        pg = np.int64(-1)  # the previous group of h in use, or -1
-        j = np.int64(0)  # where in it the last pair was found, plus one
-        nxt = np.int64(0)  # the previous group the next current group likely has
-        for r in range(lo, end):
-            a = pairs[r, 0]
-            b = pairs[r, 1]
-            if a != ch and b != ch:  # this list's groups, for the next call
-                ch = a
-                if r + 1 < end and not _has(pairs, r + 1, a) and _has(pairs, r + 1, b):
-                    ch = b
-                cur_gpos[cg] = r
-                cur_ghub[cg] = ch
-                cg += 1
-            if mapped:
-                pa = m[a]
-                pb = m[b]
-            else:
-                pa = a if a < n_prev else np.int64(-1)
-                pb = b if b < n_prev else np.int64(-1)
-            prev_rows[r] = -1
-            if pa < 0 or pb < 0:
+        _in_step_chunk(c, pairs, m, False, n_prev, False, shifts, jumps, prev_pairs,
+                       prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts)
+
+
+@pjit
+def match_in_step_ids(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
+                      reach, prev_rows, matched, todo, todo_counts):
+    """``match_in_step`` with particles mapped to previous rows by ``m``."""
+    for c in numba.prange(bounds.shape[0] - 1):
+        _in_step_chunk(c, pairs, m, True, n_prev, False, shifts, jumps, prev_pairs,
+                       prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts)
+
+
+@pjit
+def match_in_step_shifts(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
+                         reach, prev_rows, matched, todo, todo_counts):
+    """``match_in_step`` by row and lattice shift (corrected by ``jumps``)."""
+    for c in numba.prange(bounds.shape[0] - 1):
+        _in_step_chunk(c, pairs, m, False, n_prev, True, shifts, jumps, prev_pairs,
+                       prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts)
+
+
+@pjit
+def match_in_step_ids_shifts(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
+                             reach, prev_rows, matched, todo, todo_counts):
+    """``match_in_step`` by ``m`` and lattice shift."""
+    for c in numba.prange(bounds.shape[0] - 1):
+        _in_step_chunk(c, pairs, m, True, n_prev, True, shifts, jumps, prev_pairs,
+                       prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts)
+
+
+@ijit
+def _hash5(lo, hi, s0, s1, s2, mask, shift):
+    h = np.uint64(lo) * _MIX
+    h = (h ^ np.uint64(hi)) * _MIX
+    h = (h ^ (np.uint64(s0 & 0xFFFFF) | (np.uint64(s1 & 0xFFFFF) << np.uint64(20))
+              | (np.uint64(s2 & 0xFFFFF) << np.uint64(40)))) * _MIX
+    return np.int64(h >> shift) & mask
+
+
+@jit
+def match_rest(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, prev_shifts,
+               bounds, todo, todo_counts, left, shift, table, prev_rows, matched, ended):
+    """Pass 2 of the pair matching: the pairs pass 1 left (``todo``) against the
+    previous rows it left (``left``, ascending), through a hash table of the
+    latter (``table`` (size, 3): canonical rows, and the previous row, or -1).
+    Writes the previous rows still unmatched after it to ``ended`` (ascending)
+    and returns their number."""
+    size = table.shape[0]
+    mask = np.int64(size - 1)
+    ushift = np.uint64(shift)
+    for s in range(size):
+        table[s, 2] = -1
+    for i in range(left.shape[0]):
+        q = left[i]
+        lo, hi, t0, t1, t2 = _prev_key(prev_pairs, prev_shifts, with_shift, q)
+        s = _hash5(lo, hi, t0, t1, t2, mask, ushift)
+        while table[s, 2] >= 0:
+            s = (s + 1) & mask
+        table[s, 0] = lo
+        table[s, 1] = hi
+        table[s, 2] = q
+    for c in range(bounds.shape[0] - 1):
+        for i in range(bounds[c], bounds[c] + todo_counts[c]):
+            r = todo[i]
+            lo, hi, s0, s1, s2 = _key_of(pairs, m, mapped, n_prev, with_shift, shifts,
+                                         jumps, r)
+            s = _hash5(lo, hi, s0, s1, s2, mask, ushift)
+            while table[s, 2] >= 0:
+                q = table[s, 2]
+                if (table[s, 0] == lo and table[s, 1] == hi
+                        and _is(prev_pairs, prev_shifts, with_shift, q, lo, hi, s0, s1, s2)):
+                    prev_rows[r] = q
+                    matched[q] = 1
+                    break
+                s = (s + 1) & mask
+    e = 0
+    for i in range(left.shape[0]):
+        q = left[i]
+        if matched[q] == 0:
+            ended[e] = q
+            e += 1
+    return e
+
+
+@pjit
+def unmatched_words(matched, bounds, counts, out, fill):
+    """Rows ``q`` with ``matched[q] == 0`` in increasing order, eight rows (one word)
+    at a time: ``matched`` a uint8 array whose length is a multiple of 8 (padding
+    rows set to 1), ``bounds`` in rows, each a multiple of 8.  Pass 1 (``fill``
+    False) counts chunk ``c``'s into ``counts[c]``, pass 2 writes them from
+    ``counts[c]`` (now the chunk's offset) into ``out``."""
+    words = matched.view(np.uint64)
+    full = np.uint64(0x0101010101010101)
+    for c in numba.prange(bounds.shape[0] - 1):
+        o = counts[c] if fill else 0
+        for w in range(bounds[c] >> 3, bounds[c + 1] >> 3):
+            if words[w] == full:
                 continue
-            s0 = s1 = s2 = np.int64(0)
-            if with_shift:
-                s0 = shifts[r, 0] + jumps[b, 0] - jumps[a, 0]
-                s1 = shifts[r, 1] + jumps[b, 1] - jumps[a, 1]
-                s2 = shifts[r, 2] + jumps[b, 2] - jumps[a, 2]
-            if pa == h:
-                t = pb
-            elif pb == h:
-                t = pa
-            else:  # a new group: its hub, then its hub's previous group
-                h = pa
-                if r + 1 < end:
-                    na = pairs[r + 1, 0]
-                    nb = pairs[r + 1, 1]
-                    if mapped:
-                        na = m[na]
-                        nb = m[nb]
-                    elif na >= n_prev or nb >= n_prev:
-                        na = nb = np.int64(-1)
-                    if na != pa and nb != pa and (na == pb or nb == pb):
-                        h = pb
-                t = pb if h == pa else pa
-                # the group after the last one used (the two lists usually
-                # follow one order), else the one found below
-                pg = -1
-                for u in range(nxt, min(nxt + _LOOKAHEAD, n_groups)):
-                    if ghub[u] == h:
-                        pg = u
-                        break
-                if pg >= 0:
-                    j = gpos[pg]
-                    nxt = pg + 1
-            q = np.int64(-1)
-            if pg >= 0:
-                gs = gpos[pg]
-                ge = gpos[pg + 1]
-                for u in range(j, min(j + _WINDOW, ge)):
-                    if _same(prev_pairs, prev_shifts, u, pa, pb, with_shift, s0, s1, s2):
-                        q = u
-                        break
-                if q < 0:
-                    for u in range(gs, ge):
-                        if _same(prev_pairs, prev_shifts, u, pa, pb, with_shift, s0, s1,
-                                 s2):
-                            q = u
-                            break
-                if q >= 0:
-                    j = q + 1
-            if q < 0 and far and _apart(far_x, far_r, far_len, pa, pb, far_slack):
-                continue  # out of range in the previous call: new
-            if q < 0 and hub_start[h + 1] - hub_start[h] > (1 if pg >= 0 else 0):
-                q, g = _scan(h, pg, pa, pb, prev_pairs, prev_shifts, gpos, hub_start,
-                             hub_groups, with_shift, s0, s1, s2)
-                if q >= 0:  # follow the order of the previous list from there
-                    pg = g
-                    j = q + 1
-                    nxt = g + 1
-            if q < 0 and t != h:
-                q, g = _scan(t, -1, pa, pb, prev_pairs, prev_shifts, gpos, hub_start,
-                             hub_groups, with_shift, s0, s1, s2)
-            if q >= 0:
-                prev_rows[r] = q
-                matched[q] = 1
-        cur_counts[c] = cg - lo
+            for q in range(8 * w, 8 * w + 8):
+                if matched[q] == 0:
+                    if fill:
+                        out[o] = q
+                    o += 1
+        if not fill:
+            counts[c] = o
 
 
 @pjit
@@ -396,22 +434,6 @@ def entries_rising(entries, bounds, rising):
             if entries[r] <= entries[r - 1]:
                 rising[c] = 0
                 break
-
-
-@pjit
-def unmatched_rows(matched, bounds, counts, out, fill):
-    """Rows ``q`` with ``matched[q] == 0`` in increasing order: pass 1 (``fill``
-    False) counts chunk ``c``'s into ``counts[c]``, pass 2 writes them from
-    ``counts[c]`` (now the chunk's offset) into ``out``."""
-    for c in numba.prange(bounds.shape[0] - 1):
-        o = counts[c] if fill else 0
-        for q in range(bounds[c], bounds[c + 1]):
-            if matched[q] == 0:
-                if fill:
-                    out[o] = q
-                o += 1
-        if not fill:
-            counts[c] = o
 
 
 # ------------------------------------------------------------------ keys
@@ -473,5 +495,6 @@ def match_keys(keys, prev_keys, shift, slots, bounds, prev_rows, matched):
 
 #: the parallel kernels of this module, compiled serially (same names)
 serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in (
-    "group_pairs", "match_pairs", "match_entries", "entries_rising", "unmatched_rows",
-    "match_keys")})
+    "match_in_step", "match_in_step_ids", "match_in_step_shifts",
+    "match_in_step_ids_shifts", "match_entries", "entries_rising",
+    "unmatched_words", "match_keys")})
