@@ -63,7 +63,10 @@ def as_ids(ids, n, name="ids"):
 
 
 def _bounds(k, chunks):
-    return np.linspace(0, k, chunks + 1).astype(np.int64)
+    """``chunks + 1`` increasing row bounds from 0 to ``k``."""
+    if chunks == 1:
+        return np.array([0, k], np.int64)
+    return np.arange(chunks + 1, dtype=np.int64) * k // chunks
 
 
 def _grow(buf, size, dtype, extra=()):
@@ -124,6 +127,9 @@ class _Rows:
         ``s[name]`` (two passes of ``unmatched_words``)."""
         padded = k_prev + (-k_prev) % 8
         flags = s["matched"][:padded]
+        if chunks == 1:  # one pass into a buffer with room for every row
+            s[name] = _grow(s.get(name), k_prev, np.int64)
+            return s[name][:kern.unmatched_into(flags, s[name])]
         bounds = _bounds(padded // 8, chunks) * 8
         counts = np.zeros(chunks, np.int64)
         kernels.unmatched_words(flags, bounds, counts, _NO_ROWS, False)

@@ -1044,7 +1044,9 @@ class _Search:
         """Contact identity of this call's pairs (granularsap.identity)."""
         t0 = time.perf_counter()
         ids, positions, box, pbc, labels, rad, skin = self._id_call
-        cell, pbc_arr = _resolve_cell(box, pbc)
+        # the cell as given (unscaled), from the memo this call's frame kept
+        cs = self._cell_state(box, pbc)
+        cell, pbc_arr = cs.cell, cs.pbc
         shifts = self._out_s[:total] if self._tracker.shifts else None
         # rows re-tested from a kept list carry their entry in it: two calls on one
         # list match by entry (unless two images of a pair may both be in the list)
@@ -1053,7 +1055,7 @@ class _Search:
             twice = False
             if cell is not None and self.periodic_images == "minimum" and pbc_arr.any():
                 reach = 2.0 * (2.0 * float(rad.max()) + skin + self.rebuild_margin)
-                twice = reach >= periodic.perpendicular_widths(cell)[pbc_arr].min() * (1 - 1e-6)
+                twice = reach >= cs.min_periodic_width * (1 - 1e-6)
             if not twice:
                 entries = (self._rebuilds, self._out_e[:total])
         # the pairs are every pair within rad_i + rad_j + skin: the tracker tells

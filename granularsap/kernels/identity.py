@@ -436,6 +436,23 @@ def entries_rising(entries, bounds, rising):
                 break
 
 
+@jit
+def unmatched_into(matched, out):
+    """``unmatched_words`` in one serial pass: the rows with ``matched[q] == 0``
+    written to ``out`` (room for every row); returns their number."""
+    words = matched.view(np.uint64)
+    full = np.uint64(0x0101010101010101)
+    o = 0
+    for w in range(words.shape[0]):
+        if words[w] == full:
+            continue
+        for q in range(8 * w, 8 * w + 8):
+            if matched[q] == 0:
+                out[o] = q
+                o += 1
+    return o
+
+
 # ------------------------------------------------------------------ keys
 
 @ijit
