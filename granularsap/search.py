@@ -125,20 +125,20 @@ def _frame_scale(big, fine, rng, thr_min, what, range_name, thr_name):
         return k_lo if k_lo > 0 else k_hi
     if thr_min > 0 and rng > 0 and _RANGE_EXP - _exp2(rng) < k_lo:
         raise ValueError(
-            f"{range_name} {rng:.17g} and the smallest pair threshold {thr_min:.17g} "
+            f"{range_name} {rng!r} and the smallest pair threshold {thr_min!r} "
             f"({thr_name}) are more than 2**{_RANGE_EXP - _THR_EXP - 2} apart: no "
             "power-of-two scale of the frame keeps both the squared distances at the "
             "largest range finite and those at the smallest one normal; split the "
             "search by size")
     if thr_min > 0:
         raise ValueError(
-            f"positions up to {big:.17g} in magnitude and {what} {thr_min:.17g} are more "
+            f"positions up to {big!r} in magnitude and {what} {thr_min!r} are more "
             f"than 2**{_POS_EXP - _THR_EXP - 1} apart: no power-of-two scale of the frame "
             f"keeps the coordinates finite and the squared distances at {what} normal; "
             "move the frame's origin nearer the particles or use a larger range")
     raise ValueError(
-        f"with a zero {what} only coincident points pair, but positions up to {big:.17g} "
-        f"in magnitude and nonzero coordinates as small as {fine:.17g} are too far apart "
+        f"with a zero {what} only coincident points pair, but positions up to {big!r} "
+        f"in magnitude and nonzero coordinates as small as {fine!r} are too far apart "
         "for any power-of-two scale to keep the coordinates finite and every nonzero "
         "squared separation nonzero")
 
