@@ -97,6 +97,17 @@ def _magnitudes(x):
     return hi, lo
 
 
+def _far_scale(rng, width):
+    """The length a frame's coordinate rounding is compared with to call it "far":
+    the range, or without one (a zero cutoff) the narrowest periodic width."""
+    return rng if rng > 0 else width
+
+
+def _periodic_width(cell, pbc):
+    """Narrowest perpendicular width of the periodic axes (inf if none)."""
+    return float(periodic.perpendicular_widths(cell)[pbc].min()) if pbc.any() else math.inf
+
+
 def _exp2(v):
     """``e`` with ``2**(e - 1) <= v < 2**e`` (``math.frexp``), for ``v > 0``."""
     return math.frexp(v)[1]
@@ -519,8 +530,8 @@ class _Search:
         self._margin = self.rebuild_margin * scale
         # coordinates far beyond the range along an open axis: the general path,
         # which guards open axes by the range (``_build``), not by the coordinates
-        self._far = bool(n and not cs.pbc.all()
-                         and _GUARD * big * scale > (reach_max + self._margin) * _FAR)
+        self._far = bool(n and not cs.pbc.all() and _GUARD * big * scale
+                         > _far_scale(reach_max + self._margin, cs.min_periodic_width) * _FAR)
         if self._takes_small(n, minimum):  # serial kernels only: no thread setting
             self._kern = grid.serial
             result = self._run(positions, rad, skin, cs, labels, n, rmax, reach_max, minimum,
@@ -730,7 +741,8 @@ class _Search:
         _memory.check_pair_memory(self, self._t, cell, pbc, 2.0 * float(rad.min()) + skin, labels)
         t, w = self._t, self._w
         rng = reach_max + self._margin
-        far = bool(_GUARD * extent > rng * _FAR and not pbc.all() and (diag or not pbc.any()))
+        far = bool(_GUARD * extent > _far_scale(rng, _periodic_width(cell, pbc)) * _FAR
+                   and not pbc.all() and (diag or not pbc.any()))
         if far:
             # coordinates far beyond the range along open axes (one particle at
             # 1e300): on those axes the window and the separations are
