@@ -738,7 +738,9 @@ class _Search:
         bad, extent = self._kern.wrap(positions, hinv, cell, diag, pbc, self._t, self._k,
                                       self._w, int(min(_MAX_CHUNKS, max(1, n // _CHUNK))))
         self._raise_bad(bad)
-        _memory.check_pair_memory(self, self._t, cell, pbc, 2.0 * float(rad.min()) + skin, labels)
+        with np.errstate(over="ignore", invalid="ignore"):  # spans up to 2**1001
+            _memory.check_pair_memory(self, self._t, cell, pbc, 2.0 * float(rad.min()) + skin,
+                                      labels)
         t, w = self._t, self._w
         rng = reach_max + self._margin
         far = bool(_GUARD * extent > _far_scale(rng, _periodic_width(cell, pbc)) * _FAR

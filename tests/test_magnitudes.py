@@ -409,3 +409,26 @@ def test_boxes_mixed_magnitudes(boxes, threads):
             got = sap.update(lower, upper)
             assert set(map(tuple, np.sort(got, axis=1).tolist())) == want, path
             assert len(got) == len(want)
+
+
+@pytest.mark.parametrize("where", [[1e300, 0.0, 0.0], [5.0, 5.0, -1e300]])
+@pytest.mark.parametrize("kw", [dict(), dict(rebuild_margin=0.25), dict(path="sweep")])
+def test_far_point_in_a_large_frame(where, kw):
+    """A frame above the memory check's sampling size with one point at 1e300: the
+    others' pairs are those of the frame without it, the rounding guard comes from
+    the range (not every pair a candidate) and no overflow warning escapes."""
+    rng = np.random.default_rng(5)
+    x = rng.uniform(0, 45.0, (30000, 3))
+    rest = np.delete(x, 7, axis=0)
+    want = NeighborSearch(1.5, quantities="Pd").update(rest)
+    x[7] = where
+    search = NeighborSearch(1.5, quantities="Pd", **kw)
+    got = search.update(x)
+    keep = np.arange(len(x)) != 7
+    remap = np.cumsum(keep) - 1
+    assert not np.isin(7, got[0])
+    got_p = remap[got[0]]
+    a, b = np.lexsort(want[0].T[::-1]), np.lexsort(got_p.T[::-1])
+    assert np.array_equal(want[0][a], got_p[b]) and np.array_equal(want[1][a], got[1][b])
+    assert search.stats["candidates_tested"] is None or (
+        search.stats["candidates_tested"] < 100 * len(got_p))
