@@ -37,7 +37,7 @@ import numba
 import numpy as np
 
 from . import _memory, periodic
-from ._numba import num_threads
+from ._numba import jit, num_threads
 from ._validate import as_coords, as_scalar, as_vector, check_n_threads
 from .cell import Cell
 from .identity import PairIdentity, as_ids
@@ -68,6 +68,90 @@ _PARALLEL_MIN = 20000
 #: frames of up to this many particles (no Verlet margin, minimum image) are
 #: built by two serial kernels (``grid.small_count``, ``grid.small_fill``)
 _SMALL_MAX = 20000
+#: the power-of-two scale of a frame keeps |coordinates| below 2**_POS_EXP, the
+#: interaction range below 2**_RANGE_EXP and the smallest pair threshold at or
+#: above 2**_THR_EXP (its square normal, 53 bits), and with a zero threshold every
+#: nonzero coordinate difference at or above 2**_DIFF_EXP (its square nonzero)
+_POS_EXP = 1000
+_RANGE_EXP = 480
+_THR_EXP = -480
+_DIFF_EXP = -530
+#: scaled distances below this may come from squares that underflowed: they are
+#: recomputed row by row (``_Search._exact_small``)
+_TINY_D = 2.0 ** -480
+#: a frame is "far" where the coordinate-relative guard would exceed this fraction
+#: of the range (an open axis holds coordinates ~1e11 ranges away or more)
+_FAR = 2.0 ** -10
+
+
+@jit
+def _magnitudes(x):
+    """(largest |x|, smallest nonzero |x|) of an array of floats; (0, inf) if none."""
+    hi = 0.0
+    lo = np.inf
+    for v in x.ravel():
+        a = abs(v)
+        hi = a if a > hi else hi
+        if a > 0.0 and a < lo:
+            lo = a
+    return hi, lo
+
+
+def _far_scale(rng, width):
+    """The length a frame's coordinate rounding is compared with to call it "far":
+    the range, or without one (a zero cutoff) the narrowest periodic width."""
+    return rng if rng > 0 else width
+
+
+def _periodic_width(cell, pbc):
+    """Narrowest perpendicular width of the periodic axes (inf if none)."""
+    return float(periodic.perpendicular_widths(cell)[pbc].min()) if pbc.any() else math.inf
+
+
+def _exp2(v):
+    """``e`` with ``2**(e - 1) <= v < 2**e`` (``math.frexp``), for ``v > 0``."""
+    return math.frexp(v)[1]
+
+
+def _frame_scale(big, fine, rng, thr_min, what, range_name, thr_name):
+    """Binary exponent ``k`` of the frame's scale ``2**k``: 0 where no scaling is
+    needed, else the one nearest 0 that keeps every coordinate (at most ``big``)
+    finite with room to spare, the squares of in-range distances (up to ``rng``)
+    finite and those at the smallest pair threshold ``thr_min`` normal; with a
+    zero threshold (``thr_min == 0``) also the square of every nonzero coordinate
+    difference nonzero (``fine``: the smallest nonzero coordinate, the grid of
+    all of them).  ValueError naming the arguments where no power of two does."""
+    k_hi, k_lo = 10 ** 6, -10 ** 6
+    if big > 0:
+        k_hi = _POS_EXP - _exp2(big)
+    if rng > 0:
+        k_hi = min(k_hi, _RANGE_EXP - _exp2(rng))
+    if thr_min > 0:
+        k_lo = _THR_EXP + 1 - _exp2(thr_min)
+    elif math.isfinite(fine):
+        k_lo = _DIFF_EXP - max(_exp2(fine) - 53, -1074)
+    if k_lo <= 0 <= k_hi:
+        return 0
+    if k_lo <= k_hi:
+        return k_lo if k_lo > 0 else k_hi
+    if thr_min > 0 and rng > 0 and _RANGE_EXP - _exp2(rng) < k_lo:
+        raise ValueError(
+            f"{range_name} {rng!r} and the smallest pair threshold {thr_min!r} "
+            f"({thr_name}) are more than 2**{_RANGE_EXP - _THR_EXP - 2} apart: no "
+            "power-of-two scale of the frame keeps both the squared distances at the "
+            "largest range finite and those at the smallest one normal; split the "
+            "search by size")
+    if thr_min > 0:
+        raise ValueError(
+            f"positions up to {big!r} in magnitude and {what} {thr_min!r} are more "
+            f"than 2**{_POS_EXP - _THR_EXP - 1} apart: no power-of-two scale of the frame "
+            f"keeps the coordinates finite and the squared distances at {what} normal; "
+            "move the frame's origin nearer the particles or use a larger range")
+    raise ValueError(
+        f"with a zero {what} only coincident points pair, but positions up to {big!r} "
+        f"in magnitude and nonzero coordinates as small as {fine!r} are too far apart "
+        "for any power-of-two scale to keep the coordinates finite and every nonzero "
+        "squared separation nonzero")
 
 
 def _check_quantities(quantities):
@@ -126,7 +210,10 @@ def _level_split(rad, rmax, reach, n, volume):
             (2 * layers + 1) ** 2 * visit)
         return small * (n - n_big) + large * n_big
 
-    single = cost(rmax, 0)
+    try:  # (a cost figure only: a range whose powers overflow takes one level)
+        single = cost(rmax, 0)
+    except OverflowError:
+        return None
     best, choice = single, None
     sorted_r = np.sort(rad)
     for qtl in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99):
@@ -134,7 +221,10 @@ def _level_split(rad, rmax, reach, n, volume):
         if not 0.0 < r_c < rmax:
             continue
         n_big = n - int(np.searchsorted(sorted_r, r_c, side="right"))
-        c = cost(r_c, n_big)
+        try:
+            c = cost(r_c, n_big)
+        except OverflowError:
+            continue
         if c < best:
             best, choice = c, r_c
     return choice if best < single * 0.75 else None
@@ -226,7 +316,7 @@ class _CellState:
     while the same cell comes back)."""
 
     __slots__ = ("cell", "pbc", "cell_k", "diag", "hinv", "widths", "key", "narrowest",
-                 "magnitude", "min_periodic_width", "det")
+                 "magnitude", "fine", "min_periodic_width", "det")
 
     def __init__(self, cell, pbc):
         self.cell, self.pbc = cell, pbc
@@ -239,6 +329,8 @@ class _CellState:
         axes = np.flatnonzero(pbc)
         self.narrowest = [int(c) for c in axes[np.argsort(self.widths[axes], kind="stable")][:1]]
         self.magnitude = float(np.abs(cell).max()) if cell is not None else 0.0
+        #: the smallest nonzero |entry| of the cell (inf for open boundaries)
+        self.fine = _magnitudes(cell)[1] if cell is not None else math.inf
         self.min_periodic_width = float(self.widths[pbc].min()) if pbc.any() else math.inf
         with np.errstate(over="ignore", under="ignore"):
             # a cell beyond 2**340 wide has no finite volume (searches then run on
@@ -405,25 +497,41 @@ class _Search:
                         "of a pair would be in range. Use a larger cell (replicate it) or a "
                         "smaller range, or periodic_images='all' to get every image with "
                         "its shift")
-        # Coordinates so large that squared distances overflow (or so small that
-        # they underflow) are scaled by a power of two, which is exact: every
-        # comparison and every distance is the same as in unbounded arithmetic.
+        # Coordinates are scaled by a power of two, which is exact, where squared
+        # distances would overflow or underflow (_frame_scale): the scale comes from
+        # the interaction range, the smallest pair threshold and the largest
+        # coordinate, so that a far particle cannot push the others' squares
+        # under the smallest normal double; every comparison and distance is then
+        # that of float64 with an unbounded exponent
         self._given = positions  # as the caller gave them, for messages
-        mag = max(max(float(positions.max()), -float(positions.min())) if n else 0.0,
-                  reach_max, cs.magnitude)
+        self._given_cs = cs
         scale = 1.0
-        if mag > 2.0 ** 500 or 0.0 < mag < 2.0 ** -500:
-            # (at most 2**1000: a subnormal magnitude still lands well above 2**-500)
-            scale = math.ldexp(1.0, min(-math.frexp(mag)[1], 1000))
-            positions = positions * scale
-            rad = rad * scale
-            skin = skin * scale
-            rmax *= scale
-            reach_max *= scale
-            if cell is not None:
-                cell = cell * scale
-                cs = _CellState(cell, pbc_arr)
+        self._fine_q = None
+        if n:
+            big, fine = _magnitudes(positions)
+            big = max(big, cs.magnitude)
+            fine = min(fine, cs.fine)
+            if math.isfinite(fine):
+                # every coordinate (and cell entry) is a multiple of 2**q
+                self._fine_q = max(_exp2(fine) - 53, -1074)
+            k = _frame_scale(big, fine, reach_max + self.rebuild_margin,
+                             2.0 * float(rad.min()) + skin, *self._names)
+            if k:
+                scale = math.ldexp(1.0, k)
+                positions = positions * scale
+                rad = rad * scale
+                skin = skin * scale
+                rmax *= scale
+                reach_max *= scale
+                if cell is not None:
+                    cell = cell * scale
+                    cs = _CellState(cell, pbc_arr)
+        self._scale = scale
         self._margin = self.rebuild_margin * scale
+        # coordinates far beyond the range along an open axis: the general path,
+        # which guards open axes by the range (``_build``), not by the coordinates
+        self._far = bool(n and not cs.pbc.all() and _GUARD * big * scale
+                         > _far_scale(reach_max + self._margin, cs.min_periodic_width) * _FAR)
         if self._takes_small(n, minimum):  # serial kernels only: no thread setting
             self._kern = grid.serial
             result = self._run(positions, rad, skin, cs, labels, n, rmax, reach_max, minimum,
@@ -436,14 +544,6 @@ class _Search:
                 self._kern = grid.serial if threads == 1 else grid
                 result = self._run(positions, rad, skin, cs, labels, n, rmax, reach_max,
                                    minimum, threads, t_start, scale)
-        if scale != 1.0:
-            if self.layout == "pairs":
-                # once per buffer: a quantity asked for twice is the same view
-                for q in set(self.quantities) & set("dD"):
-                    r = result[self.quantities.index(q)]
-                    r /= scale
-            elif len(result) == 3:
-                np.divide(result[2], scale, out=result[2])
         if copy:
             result = tuple(np.array(r) for r in result)
         return result[0] if len(result) == 1 else result
@@ -454,7 +554,8 @@ class _Search:
         ``n_threads`` below ``_PARALLEL_MIN``), or too few particles for a second
         chunk of parallel work."""
         if not (0 < n <= self._small_max and self._margin == 0.0 and minimum
-                and self.path != "sweep" and self._levels is True and self._split == 1):
+                and self.path != "sweep" and self._levels is True and self._split == 1
+                and not self._far):
             return False
         one = self.n_threads == 1 or (self.n_threads is None and n < _PARALLEL_MIN)
         return one or n < 2 * _CHUNK
@@ -534,6 +635,7 @@ class _Search:
                 and 2.0 * reach_max >= cs.min_periodic_width * (1.0 - 1e-9)):
             total = self._dedup(total)
         times["narrow"] = time.perf_counter() - t0
+        self._unscale(total)
         result = self._results(total)
         times["total"] = time.perf_counter() - t_start
         self.stats = {
@@ -546,6 +648,70 @@ class _Search:
             "columns": self._grid_shape, "predicted_cpp": self._cpp[0],
         }
         return result
+
+    def _unscale(self, total):
+        """Distances and vectors of this call back to the caller's units (the
+        buffers, in place), and those the scaled arithmetic may not have got
+        exactly recomputed from the given positions (``_exact_small``)."""
+        if total == 0:
+            return
+        q = self._computed
+        want_d, want_v = "d" in q, "D" in q
+        scale = self._scale
+        if scale != 1.0:
+            inv = 1.0 / scale  # a power of two: the products are exact divisions
+            if want_d:
+                self._out_d[:total] *= inv
+            if want_v:
+                self._out_v[:total] *= inv
+        fine = self._fine_q
+        if fine is None or not (want_d or want_v):
+            return
+        k = _exp2(scale) - 1
+        if fine + k >= -480:
+            # every nonzero separation is at least 2**-480 scaled: its square and
+            # the sum of squares are those of an unbounded exponent
+            return
+        periodic_s = self._given_cs.cell is None or "S" in q
+        if fine + k < -1074 and periodic_s:
+            # the scale dropped low bits of the smallest coordinates: every row
+            # (with its shift: the nearest lattice vector is the shift of tiny
+            # separations only)
+            rows = np.arange(total)
+        elif want_d:
+            rows = np.flatnonzero(self._out_d[:total] < _TINY_D / scale)
+        else:  # vectors are exact differences
+            return
+        if len(rows):
+            self._exact_small(rows, want_d, want_v)
+
+    def _exact_small(self, rows, want_d, want_v):
+        """Distances and vectors of ``rows`` from the given positions and the pair's
+        lattice shift ``S`` (``D = x_j - x_i + S0 a + S1 b + S2 c``, added in this
+        order), the distance scaled row by row by a power of two: exact where the
+        frame's scale let squares of tiny separations underflow."""
+        x = self._given
+        pairs = self._out_p[rows]
+        v = x[pairs[:, 1]] - x[pairs[:, 0]]
+        cs = self._given_cs
+        if cs.cell is not None:
+            if "S" in self._computed:
+                shift = self._out_s[rows]
+            else:
+                # a separation far below the cell widths: the shift is the nearest
+                # lattice vector
+                h = cs.hinv if not cs.diag else np.diag(1.0 / np.diag(cs.cell_k))
+                frac = v[:, 0:1] * h[0] + v[:, 1:2] * h[1] + v[:, 2:3] * h[2]
+                shift = np.where(cs.pbc, -np.rint(frac), 0.0).astype(np.int64)
+            for c in range(3):
+                v += shift[:, c:c + 1] * cs.cell[c]
+        if want_v:
+            self._out_v[rows] = v
+        if want_d:
+            e = np.frexp(np.abs(v).max(axis=1))[1]
+            u = np.ldexp(v, -e[:, None])
+            self._out_d[rows] = np.ldexp(
+                np.sqrt(u[:, 0] * u[:, 0] + u[:, 1] * u[:, 1] + u[:, 2] * u[:, 2]), e)
 
     def _raise_bad(self, bad):
         if bad >= 0:
@@ -573,10 +739,27 @@ class _Search:
                                       self._w, int(min(_MAX_CHUNKS, max(1, n // _CHUNK))))
         self._raise_bad(bad)
         t, w = self._t, self._w
-        extent = extent + reach_max + self._margin
+        rng = reach_max + self._margin
+        far = bool(_GUARD * extent > _far_scale(rng, _periodic_width(cell, pbc)) * _FAR
+                   and not pbc.all() and (diag or not pbc.any()))
+        if far:
+            # coordinates far beyond the range along open axes (one particle at
+            # 1e300): on those axes the window and the separations are
+            # differences of the coordinates, whose rounding is relative to the
+            # range, so the guard is taken from the periodic lengths only (the
+            # column layers get the binning's rounding instead, below)
+            extent = 2.0 * max((abs(float(cell[c, c])) for c in range(3) if pbc[c]),
+                               default=0.0)
+        extent = extent + rng
         guard = _GUARD * extent + np.finfo(np.float64).tiny
         reach = skin + self._margin + guard
         widths = periodic.perpendicular_widths(cell)
+        if pbc.any() and guard > 0.25 * float(widths[pbc].min()):
+            raise ValueError(
+                f"positions up to {float(np.abs(self._given).max())!r} in magnitude: their "
+                f"rounding (about {guard / self._scale:.3g}) exceeds a quarter of the "
+                f"cell width {float(widths[pbc].min()) / self._scale:.17g}; give "
+                "coordinates nearer the cell")
         lo = np.zeros(3)
         span = np.ones(3)
         for c in range(3):
@@ -584,14 +767,17 @@ class _Search:
                 lo[c] = t[:, c].min()
                 span[c] = t[:, c].max() - lo[c]
         r_small = None
+        with np.errstate(over="ignore", under="ignore"):
+            # a cost figure only (spans up to 2**1001: the volume may be inf or 0)
+            volume = float(np.prod(span)) * abs(float(np.linalg.det(cell)))
         if self._margin == 0.0 and minimum and self._levels is not False:
             if self._levels is True:
                 memo = getattr(self, "_split_memo", None)
                 if memo is not None and memo[0] == (n, reach) and np.array_equal(memo[1], rad):
                     r_small = memo[2]
                 else:
-                    r_small = _level_split(rad, rmax, reach, n, float(np.prod(span))
-                                           * abs(float(np.linalg.det(cell))))
+                    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+                        r_small = _level_split(rad, rmax, reach, n, volume)
                     self._split_memo = ((n, reach), rad.copy(), r_small)
             elif 0.0 < self._levels < rmax:  # a forced split (tests)
                 r_small = float(self._levels)
@@ -617,16 +803,19 @@ class _Search:
         layers = []
         layers_big = []
         for c in range(2):
-            f = span[c] / nb[c]
+            f = float(span[c]) / nb[c]
             with np.errstate(over="ignore", divide="ignore"):
                 inv_f[c] = nb[c] / span[c] if span[c] > 0 else 0.0
             if not math.isfinite(inv_f[c]):  # a subnormal span: one column
                 nb[c], inv_f[c], f = 1, 0.0, 0.0
-            if f >= delta[c] or f == 0:
-                L = 1
-            else:
-                L = math.ceil(delta[c] / f)
-            L_big = 1 if (f >= delta_big[c] or f == 0) else math.ceil(delta_big[c] / f)
+            # (layers capped: a range beyond 2**62 columns is all of an open axis)
+            d_c, db_c = float(delta[c]), float(delta_big[c])
+            if far and not pbc[c]:
+                # a column index is rounded by at most 2 eps nb: the layers cover it
+                pad = 8.0 * np.finfo(np.float64).eps * nb[c] * f
+                d_c, db_c = d_c + pad, db_c + pad
+            L = 1 if (f >= d_c or f == 0) else math.ceil(min(d_c / f, 2.0 ** 62))
+            L_big = 1 if (f >= db_c or f == 0) else math.ceil(min(db_c / f, 2.0 ** 62))
             if not pbc[c]:
                 L = min(L, nb[c] - 1)
                 L_big = min(L_big, nb[c] - 1)
@@ -655,18 +844,28 @@ class _Search:
         self._kern.counting_sort(self._col, prev, ncol, start, perm, hist)
         # refused before any pair is searched: the plan's columns bound the pairs
         # at once; only a frame they do not show to fit takes the full bound
-        _memory.check_pair_memory(self, t, cell, pbc, 2.0 * float(rad.min()) + skin, labels,
-                                  columns=(start, nb0, nb1, layers_big[0], layers_big[1]))
+        with np.errstate(over="ignore", invalid="ignore"):  # spans up to 2**1001
+            _memory.check_pair_memory(self, t, cell, pbc, 2.0 * float(rad.min()) + skin,
+                                      labels,
+                                      columns=(start, nb0, nb1, layers_big[0], layers_big[1]))
         self._kern.sort_columns(start, ncol, perm, t, 2, fresh)
         self._perm_buf = prev if not fresh else np.empty(n, np.int64)
         self._perm = perm
         use_label = labels is not None
         lab = labels if use_label else self._ls
         occ = np.diff(start)
-        self._cpp = _predict_cpp(occ, len(stencil), len(stencil_big), widths, span,
-                                 float(np.prod(span)) * abs(float(np.linalg.det(cell))),
-                                 rad, skin, reach, rmax, r_small)
+        with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+            self._cpp = _predict_cpp(occ, len(stencil), len(stencil_big), widths, span,
+                                     volume, rad, skin, reach, rmax, r_small)
         path, self._path_reason = self._choose_path(n, minimum, self._cpp)
+        if path == "sweep" and far:
+            # the paper's sweep widens every cube by the rounding of the largest
+            # coordinate: a far particle would make every cube overlap (and,
+            # with periodic axes, every particle a ghost of many cells)
+            path, self._path_reason = "columns", (
+                f"{self._path_reason}; but coordinates lie more than "
+                f"{_FAR / _GUARD:.3g} ranges away along an open axis, where the paper's "
+                "sweep would widen every cube by their rounding: the column sweep")
         self._path_now = path
         direct = self._margin == 0.0 and path == "columns"
         if direct:  # straight into the layout the column sweep reads
@@ -716,7 +915,7 @@ class _Search:
         # a Verlet list: the records of the pairs within the range plus the margin
         t1 = time.perf_counter()
         uniform = bool(rad.min() == rad.max())
-        thr = float(rad[0]) + float(rad[0]) + reach if uniform else 0.0
+        thr = float(rad[0]) + float(rad[0]) + float(reach) if uniform else 0.0
         tests = (diag, stencil, rmax, reach, inv_w2, not minimum, reach, False, uniform,
                  thr * thr * (1.0 + 1e-12))
         counts, tested, wstart, wneed = self._pass1(geometry, tests, levels, True)
@@ -807,12 +1006,14 @@ class _Search:
                 h = cs.hinv[:, open_axes]
                 frac = (positions[:, 0:1] * h[0] + positions[:, 1:2] * h[1]
                         + positions[:, 2:3] * h[2])
-            span = float(np.prod(frac.max(axis=0) - frac.min(axis=0)))
+            with np.errstate(over="ignore", under="ignore"):
+                span = float(np.prod(frac.max(axis=0) - frac.min(axis=0)))
         memo = getattr(self, "_small_split_memo", None)
         key = (n, skin, span, cs.key)
         if memo is not None and memo[0] == key and np.array_equal(memo[1], rad):
             return memo[2]
-        r_small = _level_split(rad, rmax, skin, n, span * cs.det)
+        with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+            r_small = _level_split(rad, rmax, skin, n, span * cs.det)
         self._small_split_memo = (key, rad.copy(), r_small)
         return r_small
 
@@ -1211,6 +1412,8 @@ class NeighborSearch(_Search):
     """
 
     _what = "cutoff"
+    #: names of the range, the largest range and the smallest threshold in messages
+    _names = ("cutoff", "cutoff + rebuild_margin", "cutoff")
 
     def __init__(self, cutoff, *, rebuild_margin=0.0, quantities="Pd", layout="pairs",
                  periodic_images="minimum", include_cutoff=True, n_threads=None, path="auto",
@@ -1220,6 +1423,14 @@ class NeighborSearch(_Search):
                          n_threads=n_threads, periodic_images=periodic_images,
                          include_cutoff=include_cutoff, path=path, identity=identity)
         self._half = None
+        # the threshold of every pair is (half + half) + rest == cutoff exactly: half
+        # is cutoff / 2 rounded down, and rest is 0 unless the cutoff is a subnormal
+        # with its lowest bit set (5e-324 / 2 rounds to 0): then the lost bit
+        half = 0.5 * self.cutoff
+        if half + half > self.cutoff:
+            half = math.nextafter(half, 0.0)
+        self._half_cutoff = half
+        self._rest = self.cutoff - (half + half)
 
     def update(self, positions, box=None, *, pbc=None, copy=False, ids=None):
         """Pairs of this frame.
@@ -1248,8 +1459,8 @@ class NeighborSearch(_Search):
         n = len(positions)
         ids = self._check_ids(ids, n)
         if self._half is None or len(self._half) != n:
-            self._half = np.full(n, 0.5 * self.cutoff)
-        return self._run_tracked(positions, self._half, 0.0, box, pbc, None, copy, ids)
+            self._half = np.full(n, self._half_cutoff)
+        return self._run_tracked(positions, self._half, self._rest, box, pbc, None, copy, ids)
 
 
 class ContactSearch(_Search):
@@ -1292,6 +1503,9 @@ class ContactSearch(_Search):
     """
 
     _what = "interaction range 2 * max(radii) + skin"
+    _names = ("the smallest contact distance 2 * min(radii) + skin",
+              "the interaction range 2 * max(radii) + skin + rebuild_margin",
+              "2 * min(radii) + skin")
 
     def __init__(self, *, skin=0.0, rebuild_margin=0.0, quantities="P", layout="pairs",
                  periodic_images="minimum", include_cutoff=True, n_threads=None, path="auto",
