@@ -31,11 +31,13 @@ from .kernels import sweep as sw
 _AXIS_NAMES = {"x": 0, "y": 1, "z": 2}
 #: Endpoints per sort bucket below which fewer buckets are used.
 _MIN_BUCKET = 256
-#: Buckets of the sort (Algorithm 2's m): at least this many, so that the
-#: dispersion D can see clustering (Section 5) ...
-_MIN_BUCKETS = 16
-#: ... and this many per thread, so that buckets balance across threads.
-_BUCKETS_PER_THREAD = 8
+#: Buckets of the sort (Algorithm 2's m), so that the dispersion D can see
+#: clustering (Section 5) and the buckets spread over the threads.  A constant,
+#: not a multiple of the thread count: D decides the axis swaps, and the sweep
+#: axes decide the row order, which must not depend on the threads.  (64
+#: buckets made the parallel sweep of 2^18 paper boxes 4-21% slower on 1 and
+#: 2 threads, one run on a shared 2-core machine.)
+_SORT_BUCKETS = 16
 #: Boxes below which one thread is used unless n_threads asks otherwise
 #: (starting a parallel region costs more than the whole search).
 _PARALLEL_MIN = 32768
@@ -82,6 +84,13 @@ _LAST_PAIRS_PER_BOX = [2.0]
 _MAX_PAIRS_HINT = 16.0
 #: Leaf bits of one pairing partition's sharded SuccTree (2**21 bits = 256 KiB).
 _PAIR_TREE_BITS = 1 << 21
+#: Pairing partitions: at least this many (work for up to as many threads) and
+#: a multiple of it, unless that would make partitions of fewer than
+#: _PAIR_PART_MIN ranks.  Partitions are rank ranges and the rows come out
+#: partition by partition, so their number depends on the input only, never
+#: on the thread count.
+_PAIR_PARTS = 16
+_PAIR_PART_MIN = 1024
 
 
 def _parse_axes(axes):
@@ -325,8 +334,9 @@ class SweepAndPrune:
         Returns
         -------
         pairs : (k, 2) ndarray of int64
-            Each overlapping pair once, ``i < j`` in every row; row order is
-            unspecified.  With a second set: ``(a, b)`` rows of the first and
+            Each overlapping pair once, ``i < j`` in every row; rows are not
+            sorted, but their order is the same on any thread count
+            (docs/boxes.md, "Row order").  With a second set: ``(a, b)`` rows of the first and
             the second set, rows sorted.
 
         Raises
@@ -413,8 +423,7 @@ class SweepAndPrune:
     def _update_sap(self, lower, upper, threads, t_start, path):
         n = lower.shape[0]
         parts = 1 if path == "sequential" else (self._partitions or threads)
-        buckets = max(1, min(max(_MIN_BUCKETS, _BUCKETS_PER_THREAD * threads),
-                             (2 * n) // _MIN_BUCKET))
+        buckets = max(1, min(_SORT_BUCKETS, (2 * n) // _MIN_BUCKET))
         if self._partitions:
             buckets = max(buckets, min(self._partitions, max(1, 2 * n)))
         fresh = self._ensure(n, parts, buckets)
@@ -468,7 +477,7 @@ class SweepAndPrune:
             t2 = time.perf_counter()
             cand_s = t2 - t1
             z0, inv_h, reach, nbins = sw.third_axis_bins(lower, upper, a2, self.max_bins)
-            pparts = self._pair_parts(n, threads, nbins)
+            pparts = self._pair_parts(n, nbins)
             delta = (n + pparts - 1) // pparts
             if self._pair_layout != (pparts, nbins, threads):
                 self._pair_layout = (pparts, nbins, threads)
@@ -841,14 +850,18 @@ class SweepAndPrune:
                      axes=(c0, c1))
         return pairs
 
-    def _pair_parts(self, n, threads, nbins):
-        """Rank partitions of the pairing phase: at least one per thread, and
-        small enough that a partition's sharded SuccTree stays in L2 cache."""
+    def _pair_parts(self, n, nbins):
+        """Rank partitions of the pairing phase: small enough that a
+        partition's sharded SuccTree stays in L2 cache, and enough of them
+        for the threads, from ``n`` and ``nbins`` only (the rows are written
+        partition by partition: their order must not depend on the threads)."""
         if self._partitions:
             return self._partitions
         target = max(4096, _PAIR_TREE_BITS // max(nbins, 1))
-        parts = max(threads, -(-n // target))
-        return -(-parts // threads) * threads
+        parts = max(-(-n // target), min(_PAIR_PARTS, -(-n // _PAIR_PART_MIN)))
+        if parts > _PAIR_PARTS:
+            parts = -(-parts // _PAIR_PARTS) * _PAIR_PARTS
+        return parts
 
     def _capacity(self, n, parts):
         """Pairs each partition's buffer should hold (a guess; it grows)."""
@@ -1093,8 +1106,9 @@ def box_overlaps(lower, upper, lower_b=None, upper_b=None, *, n_threads=None):
     Returns
     -------
     pairs : (k, 2) ndarray of int64
-        One set: each overlapping pair once with ``i < j``; row order is
-        unspecified.  Two sets: ``(a, b)`` with ``a`` a row of the first set
+        One set: each overlapping pair once with ``i < j``; rows are not
+        sorted, but their order is the same on any thread count
+        (docs/boxes.md, "Row order").  Two sets: ``(a, b)`` with ``a`` a row of the first set
         and ``b`` a row of the second, rows sorted (by ``a``, then ``b``).
 
     Raises

@@ -623,6 +623,12 @@ class DomainSearch:
             norm = np.where(span > 0, halo / np.where(span > 0, span, 1.0), np.inf)
             grid = _choose_grid(int(domains), norm, splittable)
         else:
+            if n < 2:
+                # no pair to find on any grid: honour the one given; an axis
+                # without extent gets a nominal one (every particle in its
+                # first domain, the others empty)
+                span = np.where(span > 0, span, 1.0)
+                splittable = [True] * 3
             grid = _as_grid(domains, splittable)
         self.grid = grid
         self.plan = _Plan(kind="cutoff" if cutoff is not None else "contacts",

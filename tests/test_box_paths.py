@@ -176,6 +176,36 @@ def test_thread_count_does_not_change_the_rows():
     np.testing.assert_array_equal(one, two)
 
 
+def _frames_for_order(n, big):
+    rng = np.random.default_rng(14)
+    lo = rng.random((n, 3)) * 1.2 * n ** (1 / 3)
+    side = rng.uniform(0.5, 1.5, (n, 3))
+    if big:  # boxes far above the median size: the column path's big list
+        side[:big] *= 9.0
+    vel = rng.uniform(-0.2, 0.2, (n, 3))
+    return [(lo + f * vel, lo + f * vel + side) for f in range(3)]
+
+
+@pytest.mark.parametrize("path", ["sequential", "parallel", "columns", "auto"])
+@pytest.mark.parametrize("n,big", [(3000, 0), (5000, 40)])
+def test_row_order_is_the_same_on_one_and_two_threads(path, n, big):
+    """Every path returns the same rows in the same order on 1 and 2 threads,
+    frame after frame of one engine (auto: the paper's sweep below 4096 boxes,
+    the column sweep with a big list above)."""
+    frames = _frames_for_order(n, big)
+    got = {}
+    for threads in (1, 2):
+        engine = SweepAndPrune(path=path, n_threads=threads)
+        got[threads] = [(engine.update(lo, hi), engine.stats["path"]) for lo, hi in frames]
+        if path == "columns" or (path == "auto" and n >= 4096):
+            assert engine.stats["path"] == "columns"
+            assert engine.stats["columns"]["big"] == big
+    for (one, p1), (two, p2) in zip(got[1], got[2], strict=True):
+        assert p1 == p2
+        np.testing.assert_array_equal(one, two)
+    check(got[1][-1][0], *frames[-1])
+
+
 # ------------------------------------------------------------ stateful engines
 
 def moving(rng, n, frames, step=0.3):

@@ -71,6 +71,25 @@ class TestBundledData:
                 np.testing.assert_array_equal(cf.pairs(k), ids[order])
                 np.testing.assert_allclose(cf.distances(k), dist[order], rtol=1e-12)
 
+    def test_mdanalysis_format_leaves_stderr_quiet(self, tmp_path):
+        """`--format mdanalysis:LAMMPSDUMP` on a dump (no dt in the file): no
+        "Reader has no dt information" on stderr, even with every warning shown."""
+        dump = data_file("lj.dump")
+        out = tmp_path / "lj.h5"
+        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        env = dict(os.environ, PYTHONWARNINGS="always",
+                   PYTHONPATH=os.pathsep.join(filter(None, [root,
+                                                            os.environ.get("PYTHONPATH")])))
+        proc = subprocess.run([sys.executable, "-m", "granularsap", "contacts", dump, "-o",
+                               str(out), "--cutoff", "1.5", "--frames", "0:3",
+                               "--format", "mdanalysis:LAMMPSDUMP", "-q"],
+                              capture_output=True, text=True, env=env, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        assert "dt information" not in proc.stderr, proc.stderr
+        with ContactsFile(out) as cf:
+            assert cf.n_frames == 3
+            np.testing.assert_array_equal(cf.time, cf.step.astype(float))
+
     def test_clumps_equal_clump_contacts(self, tmp_path):
         dump = data_file("clumps.dump")
         out = tmp_path / "cl.h5"

@@ -188,6 +188,27 @@ class TestThreaded:
             cn = gdask.coordination_numbers(x, 1.0, cell=[5, 5, 5, 90, 90, 90]).compute()
             np.testing.assert_array_equal(cn, [1, 1] if n == 2 else np.zeros(n))
 
+    @pytest.mark.parametrize("n", [0, 1])
+    @pytest.mark.parametrize("chunking", ["numpy", "dask"])
+    def test_explicit_grid_on_an_open_frame_without_pairs(self, n, chunking):
+        """0 or 1 particle has no pair whatever the grid: an explicit grid is
+        honoured (no refusal about an axis "along which every particle has the
+        same coordinate"), every domain is empty of pairs."""
+        x = np.full((n, 3), 1.5)
+        xs = x if chunking == "numpy" else da.from_array(x, chunks=(max(n, 1), 3))
+        for domains in ((2, 1, 1), (1, 3, 2), (2, 2, 2)):
+            ds = gdask.DomainSearch(xs, cutoff=1.0, domains=domains)
+            assert ds.grid == domains and ds.n_domains == int(np.prod(domains))
+            df = ds.pairs()
+            assert df.npartitions == ds.n_domains
+            assert len(df.compute()) == 0
+            assert int(ds.count_pairs().compute()) == 0
+            np.testing.assert_array_equal(ds.coordination_numbers().compute(), np.zeros(n))
+            sizes = ds.domain_sizes()  # halo copies included
+            assert len(sizes) == ds.n_domains and sizes[0] == n
+            cs = gdask.DomainSearch(xs, radii=0.5, domains=domains)
+            assert cs.grid == domains and len(cs.pairs().compute()) == 0
+
     def test_all_on_a_plane_open(self):
         x = np.random.default_rng(2).uniform(0, 5, (300, 3))
         x[:, 2] = 1.0

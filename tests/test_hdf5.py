@@ -114,6 +114,7 @@ class TestSchema:
     def test_newer_schema_refused(self, tmp_path):
         out = tmp_path / "n.h5"
         w = ContactsWriter(out, {})
+        w.append(fake_results(1)[0])
         w.finish()
         with h5py.File(out, "r+") as f:
             f.attrs["schema_version"] = SCHEMA_VERSION + 1
@@ -182,9 +183,25 @@ class TestIncompleteAndResume:
         (tmp_path / "u.h5.partial").write_bytes(b"\x89HDF\r\n garbage")  # not a run directory
         w = ContactsWriter(out, {})
         assert not w.resumed and "unreadable" in w.discarded_reason
+        w.append(fake_results(1)[0])
         w.finish()
         with ContactsFile(out) as cf:
-            assert cf.complete and cf.n_frames == 0
+            assert cf.complete and cf.n_frames == 1
+
+    @pytest.mark.parametrize("resumed", [False, True])
+    def test_finish_without_frames_writes_nothing(self, tmp_path, resumed):
+        """A writer given no frame refuses to finish: no 0-frame file marked complete."""
+        out = tmp_path / "e.h5"
+        if resumed:  # a partial run with no committed segment: nothing to resume
+            ContactsWriter(out, {"a": 1})
+        w = ContactsWriter(out, {"a": 1})
+        assert w.n_frames == 0
+        with pytest.raises(ValueError, match=r"no frame was appended.*e\.h5 was not written"):
+            w.finish()
+        assert not out.exists() and not os.path.exists(partial_path(out))
+        assert not os.path.exists(str(out) + ".tmp")
+        with pytest.raises(FileNotFoundError):
+            ContactsFile(out)
 
 
 def assert_same_contacts_file(a, b):

@@ -135,6 +135,25 @@ class TestBundledData:
         if name == "clumps.dump":
             assert ours[0].molecule is not None
 
+    def test_mdanalysis_reader_without_dt_is_quiet(self):
+        """MDAnalysis warns "Reader has no dt information" on every frame of a LAMMPS
+        dump; iter_frames silences that warning (only it) and keeps MDAnalysis's
+        time, the step number (dt = 1.0)."""
+        path = os.path.join(DATA, "lj.dump")
+        if not os.path.exists(path):
+            pytest.skip("data/lj.dump not generated")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            got = list(iter_frames(path, "mdanalysis:LAMMPSDUMP", frames=slice(0, 3)))
+            warnings.warn("a warning of the caller's own", UserWarning, stacklevel=1)
+        messages = [str(w.message) for w in caught]
+        assert not [m for m in messages if "dt information" in m], messages
+        assert "a warning of the caller's own" in messages  # the caller's filters are back
+        ours = list(iter_frames(path, frames=slice(0, 3)))
+        assert len(got) == 3
+        assert [f.time for f in got] == [float(f.step) for f in ours]
+        assert [f.step for f in got] == [f.step for f in ours]
+
     def test_bundled_pour_matches_ase(self):
         import ase.io
 

@@ -43,7 +43,8 @@ written under a temporary name and renamed atomically, next to ``run.json``
 the last commit and never damages committed ones; running the same command
 again resumes after the last committed frame.  At the end the segments are
 assembled into ``OUT.h5.tmp``, ``complete`` is set to 1 last, and the file is
-renamed to ``OUT.h5``.  So ``OUT.h5`` either does not exist or is complete.
+renamed to ``OUT.h5``.  So ``OUT.h5`` either does not exist or is complete,
+with at least one frame (``finish`` refuses a run without frames).
 (HDF5 itself cannot survive a kill in the middle of rewriting a compressed
 chunk, which is why a growing HDF5 file is not used for this.)
 """
@@ -411,7 +412,20 @@ class ContactsWriter:
 
         The file's ``timing`` is ``timing`` (this run) plus the seconds of the
         earlier runs of a resumed file; ``runs`` counts them.
+
+        Raises
+        ------
+        ValueError
+            No frame was appended (nor resumed): a contacts file marked complete
+            holds at least one frame, so nothing is written, and the empty
+            partial run is removed.
         """
+        if self.n_frames == 0:
+            self.close()  # removes the empty partial run
+            raise ValueError(
+                f"ContactsWriter.finish(): no frame was appended, so {self.path} was not "
+                "written (a contacts file marked complete holds at least one frame); "
+                "append() frames before finish(), or close() to drop the run")
         if timing is not None:
             self.set_timing(timing)
         self.commit()

@@ -44,6 +44,20 @@ def _quiet_third_party():
         yield
 
 
+@contextlib.contextmanager
+def _no_dt_warning():
+    """Silence MDAnalysis's "Reader has no dt information, set to 1.0 ps", and only it.
+
+    Readers of files without a time step (a LAMMPS dump) warn so on opening, on
+    every frame read and on every ``ts.time``; MDAnalysis then takes dt = 1.0
+    ps, so a LAMMPS dump's frame time is its step number (docs/trajectories.md).
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"Reader has no dt information",
+                                category=UserWarning)
+        yield
+
+
 def _exception_text(exc):
     text = str(exc).strip().splitlines()
     return f"{type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")
@@ -205,7 +219,7 @@ def _universe(path, sub, topology, kwargs):
     if sub is not None:
         kwargs = {"format": sub, **kwargs}
     try:
-        with _quiet_third_party():
+        with _quiet_third_party(), _no_dt_warning():
             if topology is not None:
                 return mda.Universe(topology, path, **kwargs)
             return mda.Universe(path, **kwargs)
@@ -244,9 +258,11 @@ def _iter_mdanalysis(path, sub, frames, topology, kwargs):
         if pbcs is not None and cell is not None:
             pbc = pbcs[int(ts.frame)].copy()
         step = ts.data.get("step")
+        with _no_dt_warning():
+            t_frame = float(ts.time)
         frame = Frame(index=int(ts.frame), positions=np.array(atoms.positions, dtype=np.float64),
                       ids=ids.copy(), cell=cell, pbc=pbc,
-                      step=None if step is None else int(step), time=float(ts.time),
+                      step=None if step is None else int(step), time=t_frame,
                       types=types, radius=radius, molecule=molecule, source=path)
         yield frame.sorted_by_id()
 
@@ -257,7 +273,8 @@ def _mda_timesteps(u, frames, path):
     last = None
     while True:
         try:
-            ts = next(it)
+            with _no_dt_warning():
+                ts = next(it)
         except StopIteration:
             return
         except ValueError as exc:
