@@ -346,6 +346,8 @@ class _Search:
     _small_max = _SMALL_MAX
     _cell_memo = None
     _small_scratch = None
+    #: the band's coordinate extent of a frame far beyond the range (``_build``)
+    _far_ext = None
 
     def __init__(self, *, rebuild_margin, quantities, layout, n_threads, periodic_images,
                  include_cutoff, path, identity=False):
@@ -589,6 +591,11 @@ class _Search:
         self._frames += 1
         cell, pbc = cs.cell, cs.pbc
         cell_k, diag, hinv = cs.cell_k, cs.diag, cs.hinv
+        # the given positions (scaled: exact) and the frame's largest range, for
+        # the band of the agreed arithmetic (grid.band)
+        self._xg = positions
+        self._reach_max = reach_max
+        self._cs_now = cs
         key = (n, cs.key, skin, minimum, self.include_cutoff, labels is not None, scale)
         self._alloc_particles(n)
         if n == 0:
@@ -612,13 +619,19 @@ class _Search:
         if reason is None and n:
             n_chunks = len(self._chunk_rows) - 1
             disp2 = np.empty(n_chunks)
-            bad = self._kern.wrap_sorted(positions, self._perm, hinv, cell_k, diag, pbc, self._ts,
-                                   n_chunks, self._t, self._ks, self._ws, self._m,
-                                   disp2)
+            bad, wext, kmax = self._kern.wrap_sorted(positions, self._perm, hinv, cell_k, diag,
+                                                     pbc, self._ts, n_chunks, self._t,
+                                                     self._ks, self._ws, self._m, disp2)
             self._raise_bad(bad)
+            if self._far_ext is not None:  # see _build: open axes are not wrapped
+                wext = min(wext, self._far_ext)
+            self._wk = (wext, kmax)
             max_disp = math.sqrt(float(disp2.max()))
             if max_disp > 0.5 * margin:
                 reason = f"a particle moved {max_disp:.6g} > rebuild_margin / 2"
+            elif self._band(0.0)[2] > self._list_dtol:
+                reason = ("positions moved by whole cell vectors beyond the rounding band the "
+                          "list was built for")
         times["wrap"] = time.perf_counter() - t0
         tested = None
         self._direct_done = False
@@ -713,6 +726,15 @@ class _Search:
             self._out_d[rows] = np.ldexp(
                 np.sqrt(u[:, 0] * u[:, 0] + u[:, 1] * u[:, 1] + u[:, 2] * u[:, 2]), e)
 
+    def _band(self, x2, wk=None):
+        """``grid.frame_band`` of this frame (or of ``wk = (largest wrapped
+        coordinate, largest wrap shift)``): (lo2, hi2, dtol, exact) of the agreed
+        arithmetic's re-test band for the squared bound ``x2``."""
+        cs = self._cs_now
+        wext, kmax = self._wk if wk is None else wk
+        return grid.frame_band(float(wext), int(kmax), cs.cell_k, cs.pbc, cs.widths,
+                               self._reach_max + self._margin, self._reach_max, x2)
+
     def _raise_bad(self, bad):
         if bad >= 0:
             raise ValueError(
@@ -735,25 +757,37 @@ class _Search:
             self._perm = np.empty(0, np.int64)
             times["sort"] = times["build"] = 0.0
             return 0
-        bad, extent = self._kern.wrap(positions, hinv, cell, diag, pbc, self._t, self._k,
-                                      self._w, int(min(_MAX_CHUNKS, max(1, n // _CHUNK))))
+        bad, extent, kmax = self._kern.wrap(positions, hinv, cell, diag, pbc, self._t, self._k,
+                                            self._w, int(min(_MAX_CHUNKS, max(1, n // _CHUNK))))
         self._raise_bad(bad)
         t, w = self._t, self._w
         rng = reach_max + self._margin
         far = bool(_GUARD * extent > _far_scale(rng, _periodic_width(cell, pbc)) * _FAR
                    and not pbc.all() and (diag or not pbc.any()))
+        self._far_ext = None
         if far:
             # coordinates far beyond the range along open axes (one particle at
             # 1e300): on those axes the window and the separations are
             # differences of the coordinates, whose rounding is relative to the
             # range, so the guard is taken from the periodic lengths only (the
-            # column layers get the binning's rounding instead, below)
+            # column layers get the binning's rounding instead, below).  The
+            # band too: open axes are not wrapped, so their separations are
+            # those of the agreed arithmetic, bit for bit
             extent = 2.0 * max((abs(float(cell[c, c])) for c in range(3) if pbc[c]),
                                default=0.0)
+            self._far_ext = extent
+        widths = periodic.perpendicular_widths(cell)
+        self._wk = (extent, kmax)
+        # every superset holds the band of the agreed arithmetic (grid.band); a
+        # Verlet list the band of later frames too, up to twice the wrap shifts
+        # and coordinates of this one plus two cells (a frame beyond rebuilds)
+        cover = self._band(0.0)[2]
+        if self._margin > 0.0:
+            cover = max(cover, self._band(0.0, (2.0 * extent + self._margin, 2 * kmax + 2))[2])
+        self._list_dtol = cover
         extent = extent + rng
         guard = _GUARD * extent + np.finfo(np.float64).tiny
-        reach = skin + self._margin + guard
-        widths = periodic.perpendicular_widths(cell)
+        reach = skin + self._margin + guard + cover
         if pbc.any() and guard > 0.25 * float(widths[pbc].min()):
             raise ValueError(
                 f"positions up to {float(np.abs(self._given).max())!r} in magnitude: their "
@@ -879,7 +913,7 @@ class _Search:
                 # reads the rows)
                 tz = np.ascontiguousarray(self._ts[:, 2])
                 xs, ys, zs = (np.ascontiguousarray(self._ws[:, c]) for c in range(3))
-        if "S" in self._computed:
+        if "S" in self._computed or kmax != 0:  # (a band re-test reads them)
             np.take(self._k, perm, axis=0, out=self._ks)
         t1 = time.perf_counter()
         times["sort"] = t1 - t0
@@ -916,9 +950,10 @@ class _Search:
         t1 = time.perf_counter()
         uniform = bool(rad.min() == rad.max())
         thr = float(rad[0]) + float(rad[0]) + float(reach) if uniform else 0.0
-        tests = (diag, stencil, rmax, reach, inv_w2, not minimum, reach, False, uniform,
-                 thr * thr * (1.0 + 1e-12))
-        counts, tested, wstart, wneed = self._pass1(geometry, tests, levels, True)
+        x2 = thr * thr * (1.0 + 1e-12)
+        tests = (diag, stencil, rmax, reach, inv_w2, not minimum, reach, False, uniform, x2)
+        band = (x2, x2, 0.0, True, self._xg, self._perm, self._ks)  # a superset: no band
+        counts, tested, wstart, wneed = self._pass1(geometry, tests, band, levels, True)
         self._rows_list = False
         self._wstart, self._wneed = wstart, wneed
         self._vneed = counts
@@ -954,12 +989,12 @@ class _Search:
         if getattr(self, "_words", None) is None or len(self._words) < n + 64:
             self._records(4 * n + 1024)
         while True:
-            bad, total, tested, need, nb0, nb1 = grid.small_count(
+            bad, total, tested, need, nb0, nb1, exact = grid.small_count(
                 positions, rad, labels if use_label else self._ls, use_label, cs.cell_k,
                 cs.hinv, cs.diag, cs.pbc, cs.widths, skin, strict, uniform, x2, _GUARD,
                 r_small or 0.0, fresh, prev, self._t, self._k, self._w, self._col, perm, start,
                 cursor, self._tz, self._xs, self._ys, self._zs, self._rs, self._ls, big,
-                stencil, self._words, self._rec_p, self._rec_q, self._rec_s)
+                stencil, self._words, self._rec_p, self._rec_q, self._rec_s, self._ks)
             if bad == -2:  # a plan of more than one column layer: the general path
                 return None
             self._raise_bad(bad)
@@ -968,15 +1003,13 @@ class _Search:
             self._records(need + need // 8 + 64)
         self._perm = perm
         self._perm_buf = prev if not fresh else np.empty(n, np.int64)
-        q = self._computed
-        if "S" in q:
-            np.take(self._k, perm, axis=0, out=self._ks)
+        q = self._computed  # (small_count wrote the wrap shifts in column order)
         t1 = time.perf_counter()
         self._alloc_output(total)
         grid.small_fill(need, self._words, self._rec_p, self._rec_q, self._rec_s, self._xs,
                         self._ys, self._zs, self._rs, self._ls, use_label, cs.cell_k, cs.diag,
-                        skin, strict, uniform, x2, perm, self._ks, "d" in q, "D" in q,
-                        "S" in q, self._out_p, self._out_d, self._out_v, self._out_s)
+                        skin, strict, uniform, x2, perm, self._ks, positions, exact, "d" in q,
+                        "D" in q, "S" in q, self._out_p, self._out_d, self._out_v, self._out_s)
         self._direct_done = True
         self._direct_total = total
         self._vneed = _NO_ENTRIES
@@ -1024,7 +1057,7 @@ class _Search:
         self._rec_q = np.empty(size, np.int32)
         self._rec_s = np.empty(size, np.int32)
 
-    def _pass1(self, geometry, tests, levels, verlet):
+    def _pass1(self, geometry, tests, band, levels, verlet):
         """Pass 1 of the column sweep: per chunk its pairs, candidates and records,
         in regions sized from the last build (a chunk that needs more is swept
         again); (counts, tested, wstart, wneed)."""
@@ -1050,8 +1083,8 @@ class _Search:
                 self._rec_s = np.empty(size, np.int32)
                 todo[:] = True
             records = (self._words, self._rec_p, self._rec_q, self._rec_s)
-            self._kern.direct_count(*geometry, *tests, *records, wstart, wcap, counts, tested,
-                                    wneed, todo, *levels, verlet)
+            self._kern.direct_count(*geometry, *tests, *band, *records, wstart, wcap, counts,
+                                    tested, wneed, todo, *levels, verlet)
             over = wneed > wcap
             if not over.any():
                 break
@@ -1075,7 +1108,9 @@ class _Search:
         strict = not self.include_cutoff
         uniform, x2 = _exact_bound(rad, skin, strict)
         tests = (diag, stencil, rmax, reach, inv_w2, not minimum, skin, strict, uniform, x2)
-        counts, tested, wstart, wneed = self._pass1(geometry, tests, levels, False)
+        lo2, hi2, dtol, exact = self._band(x2)
+        band = (lo2, hi2, dtol, exact, self._xg, self._perm, self._ks)
+        counts, tested, wstart, wneed = self._pass1(geometry, tests, band, levels, False)
         offsets = np.zeros(len(counts), np.int64)
         offsets[1:] = np.cumsum(counts)[:-1]
         total = int(counts.sum())
@@ -1086,8 +1121,8 @@ class _Search:
         records = (self._words, self._rec_p, self._rec_q, self._rec_s)
         self._kern.direct_fill(wstart, wneed, offsets, *records, xs, ys, zs, rs, ls, use_label,
                                cell, diag, not minimum, skin, strict, uniform, x2, self._perm,
-                               self._ks, "d" in q, "D" in q, "S" in q, self._out_p,
-                               self._out_d, self._out_v, self._out_s)
+                               self._ks, self._xg, exact, "d" in q, "D" in q, "S" in q,
+                               self._out_p, self._out_d, self._out_v, self._out_s)
         self._direct_total = total
         times["count"] = t1 - t0
         times["fill"] = time.perf_counter() - t1
@@ -1147,12 +1182,15 @@ class _Search:
         q = self._computed
         wants = ("d" in q, "D" in q, "S" in q)
         uniform, x2 = _exact_bound(self._rs, skin, strict)
-        tests = (cell, diag, strict, uniform, x2)
+        lo2, hi2, dtol, exact = self._band(x2)
+        tests = (cell, diag, strict, uniform, x2, lo2, hi2, dtol, exact, self._xg)
         if self._rows_list:  # the list of the paper's sweep, by particle row
             rows = self._chunk_rows
             counts = np.empty(len(rows) - 1, np.int64)
             self._kern.narrow_count(rows, self._vstart, self._vstop, self._vb, self._vs,
-                                    self._ws, self._m, self._rs, skin, cell, strict, counts)
+                                    self._ws, self._m, self._rs, skin, cell, strict, uniform,
+                                    x2, lo2, hi2, dtol, self._xg, self._perm, self._ks,
+                                    counts)
         else:
             self._alloc_output(0)
             counts = np.zeros(len(self._wstart), np.int64)
@@ -1168,8 +1206,9 @@ class _Search:
         if self._rows_list:
             self._kern.narrow_fill(rows, offsets, counts, self._vstart, self._vstop, self._vb,
                                    self._vs, self._ws, self._m, self._rs, skin, cell, strict,
-                                   self._perm, self._ks, *wants, self._out_p, self._out_d,
-                                   self._out_v, self._out_s, self._out_e)
+                                   exact, self._xg, self._perm, self._ks, *wants,
+                                   self._out_p, self._out_d, self._out_v, self._out_s,
+                                   self._out_e)
         else:
             self._kern.records_narrow(True, self._wstart, self._wneed, offsets, counts,
                                       *records, self._ws, self._m, self._rs, skin, *tests,

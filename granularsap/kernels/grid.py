@@ -122,10 +122,140 @@ def _separation(w, a, b, cell, s0, s1, s2):
     return dx, dy, dz
 
 
+# ------------------------------------------------------- the one arithmetic
+#
+# Every answer follows the positions as given, ``x``, and the integer shift
+# ``S`` of a pair relative to them (docs/cells.md, "Arithmetic"):
+#
+#     D_c = (x[j, c] - x[i, c]) + S0 cell[0, c] + S1 cell[1, c] + S2 cell[2, c]
+#
+# added in that order, ``d2 = D_0^2 + D_1^2 + D_2^2``, ``d = sqrt(d2)``, in if
+# ``d <= thr`` (``<`` when strict).  The sweep reads the wrapped positions ``w =
+# x - k @ cell`` (``k`` the wrap shifts, ``_wrap_one``) through the shift ``s = S
+# + k_j - k_i`` (so ``S = s - k_j + k_i``, the shifts the outputs report).  When
+# every ``k`` is 0, ``w`` is ``x`` bit for bit (nothing is subtracted) and the
+# sweep's sum is the agreed one operation for operation: the frame is *exact*.
+# Otherwise the two differ by rounding: the test on ``w`` decides only the pairs
+# clearly inside or outside, and those within a band around the threshold are
+# re-tested with the agreed arithmetic on ``x`` (``_reference_hit``).
+#
+# The band (``band``).  u = 2**-53; every operation rounds with |error| <= u |result|
+# + eta, eta = 2**-1074 (subnormal results).  Let K = max |k|, W = max |w| (as
+# computed), C = max |cell entry| of the periodic rows, s* a bound on |s_c| over
+# every candidate any path tests (``frame_band``), A = W + 6 K C (>= |x| + 3 K C
+# up to rounding: it bounds |x|, |w| and every partial sum of the wrap) and B =
+# 3 s* C.  With D* the exact (real) separation:
+#   wrap:      w_c = x_c - sum_r k_r cell[r, c] + e,  |e| <= 6 u A  (6 operations);
+#   sweep:     7 operations on terms summing to <= 2A + B, plus both wrap errors:
+#              |D_w - D*|_c <= u (26 A + 7 B);
+#   reference: |S_r| <= s* + 2K, terms summing to <= 2A + B: |D_r - D*|_c <= 7 u (2A + B).
+# So the two computed vectors are within sqrt(3) u (40 A + 14 B) of each other;
+# ``delta = u (128 A + 64 B) + 64 eta`` covers that with room for gamma_n = n u
+# / (1 - n u) and for the rounding of these very formulas.  A sum of three
+# squares adds a relative error below gamma_3 < 4u, a square root one of u, so:
+#   one threshold (d2 <= x2, T = sqrt(x2)), g = 16 u:
+#     d2_w <= lo2 = ((1 - g) T - delta)^2 (1 - g)  implies  d2_r <= x2  (clearly in),
+#     d2_w >  hi2 = ((1 + g) T + delta)^2 (1 + g)  implies  d2_r >  x2  (clearly out);
+#   a threshold per pair thr <= tmax, with dtol = 4 delta + 16 u tmax:
+#     d_w < thr - dtol implies in, d_w > thr + dtol implies out
+#     (|d_w - d_r| <= 1.01 delta + 6.1 u thr near the threshold).
+# A pair in by the agreed arithmetic has |D_w| <= thr + delta, so ``dtol`` also
+# widens every superset pairs are drawn from (column windows, the superset
+# tests of the sweep, Verlet lists, the cubes of the paper's sweep).  An exact
+# frame has no band: lo2 = hi2 = x2, dtol = 0.
+
+#: unit roundoff of float64 and the largest absolute error of a subnormal result
+_U = 2.0 ** -53
+_ETA = 5e-324
+
+
+@jit
+def band(wmax, kmax, cmax, smax, tmax, x2):
+    """(lo2, hi2, dtol, exact) of a frame: its largest wrapped coordinate
+    ``wmax``, largest wrap shift ``kmax``, largest periodic cell entry ``cmax``,
+    bound ``smax`` on the image shifts tested, largest threshold ``tmax`` and
+    the squared bound ``x2`` of a uniform threshold (see above)."""
+    if kmax == 0:
+        return x2, x2, 0.0, True
+    a = wmax + 6.0 * kmax * cmax
+    b = 3.0 * smax * cmax
+    delta = _U * (128.0 * a + 64.0 * b) + 64.0 * _ETA
+    dtol = 4.0 * delta + 16.0 * _U * tmax + 64.0 * _ETA
+    if not x2 >= 0.0:  # nothing is in range
+        return x2, x2, dtol, False
+    g = 16.0 * _U
+    t = math.sqrt(x2)
+    lo = (1.0 - g) * t - delta
+    lo2 = lo * lo * (1.0 - g) - 16.0 * _ETA if lo > 0.0 else -1.0
+    hi = (1.0 + g) * t + delta
+    hi2 = hi * hi * (1.0 + g) + 16.0 * _ETA
+    return lo2, hi2, dtol, False
+
+
+@jit
+def frame_band(wmax, kmax, cell, pbc, widths, reach, tmax, x2):
+    """``band`` of a frame from its cell: ``reach`` bounds the separation of every
+    candidate a path tests, up to a factor 2 (the interaction range plus the
+    Verlet margin), so no tested image shift exceeds ``6 + 2 reach / w`` cell
+    vectors along an axis of perpendicular width ``w`` (the stencil's and the
+    windows' layers, the ghosts' and the image jumps of a Verlet frame)."""
+    cmax = 0.0
+    wmin = math.inf
+    for r in range(3):
+        if pbc[r]:
+            wmin = min(wmin, widths[r])
+            for c in range(3):
+                cmax = max(cmax, abs(cell[r, c]))
+    smax = 6.0 + math.ceil(2.0 * reach / wmin) if wmin < math.inf else 0.0
+    return band(wmax, kmax, cmax, smax, tmax, x2)
+
+
 @ijit
-def _distance(w, a, b, cell, s0, s1, s2):
-    dx, dy, dz = _separation(w, a, b, cell, s0, s1, s2)
-    return math.sqrt(dx * dx + dy * dy + dz * dz)
+def _given_shift(kp, p, q, s0, s1, s2):
+    """Shift relative to the given positions of the image ``s`` of ``p`` to ``q``
+    between wrapped positions (``kp`` the wrap shifts in column order)."""
+    return s0 - kp[q, 0] + kp[p, 0], s1 - kp[q, 1] + kp[p, 1], s2 - kp[q, 2] + kp[p, 2]
+
+
+@ijit
+def _hit(d2, thr, strict, uniform, x2):
+    """The exact test ``d <= thr`` (``d < thr`` if strict) with ``d = sqrt(d2)``;
+    with one threshold for every pair (``uniform``) it is ``d2 <= x2``, ``x2`` the
+    largest double whose rounded square root passes (the same answer, no sqrt)."""
+    if uniform:
+        return d2 <= x2
+    d = math.sqrt(d2)
+    return (d < thr) | ((not strict) & (d == thr))
+
+
+@ijit
+def _reference_hit(xg, perm, kp, p, q, cell, s0, s1, s2, thr, strict, uniform, x2):
+    """The agreed test of ``p`` to ``q`` through the wrapped-frame shift ``s``: on
+    the given positions ``xg`` (input order) and the shift relative to them."""
+    g0, g1, g2 = _given_shift(kp, p, q, s0, s1, s2)
+    dx, dy, dz = _separation(xg, perm[p], perm[q], cell, g0, g1, g2)
+    return _hit(dx * dx + dy * dy + dz * dz, thr, strict, uniform, x2)
+
+
+@ijit
+def _decide(d2, thr, strict, uniform, x2, lo2, hi2, dtol, xg, perm, kp, p, q, cell, s0, s1,
+            s2):
+    """The agreed test from the squared wrapped separation ``d2``: clearly in or
+    out by the band of ``band``, else re-tested on the given positions."""
+    if uniform:
+        if d2 <= lo2:
+            return True
+        if not d2 <= hi2:
+            return False
+    else:
+        d = math.sqrt(d2)
+        if d < thr - dtol:
+            return True
+        if not d <= thr + dtol:
+            return False
+        if dtol == 0.0:  # an exact frame: d == thr
+            return not strict
+    return _reference_hit(xg, perm, kp, p, q, cell, s0, s1, s2, thr, strict, uniform, x2)
 
 
 # ----------------------------------------------------------------- wrapping
@@ -171,14 +301,16 @@ def _wrap_one(x, i, hinv, cell, diag, pbc, t, k, w, j):
 @pjit
 def wrap(x, hinv, cell, diag, pbc, t, k, w, n_chunks):
     """Wrap every particle (input order); returns (first bad row or -1, largest
-    absolute wrapped coordinate)."""
+    absolute wrapped coordinate, largest absolute wrap shift)."""
     n = x.shape[0]
     bad = np.full(n_chunks, -1, np.int64)
     ext = np.zeros(n_chunks)
+    kext = np.zeros(n_chunks, np.int64)
     for ch in numba.prange(n_chunks):
         lo = ch * n // n_chunks
         hi = (ch + 1) * n // n_chunks
         mx = 0.0
+        km = np.int64(0)
         for i in range(lo, hi):
             if not _wrap_one(x, i, hinv, cell, diag, pbc, t, k, w, i):
                 if bad[ch] < 0:
@@ -187,13 +319,18 @@ def wrap(x, hinv, cell, diag, pbc, t, k, w, n_chunks):
                 a = abs(w[i, c])
                 # a NaN is caught by the caller's finiteness check of the input
                 mx = a if a > mx else mx
+                kc = abs(k[i, c])
+                km = kc if kc > km else km
         ext[ch] = mx
+        kext[ch] = km
     extent = 0.0
+    kmax = np.int64(0)
     for ch in range(n_chunks):
         if bad[ch] >= 0:
-            return bad[ch], extent
+            return bad[ch], extent, kmax
         extent = max(extent, ext[ch])
-    return -1, extent
+        kmax = max(kmax, kext[ch])
+    return -1, extent, kmax
 
 
 @pjit
@@ -204,19 +341,29 @@ def wrap_sorted(x, perm, hinv, cell, diag, pbc, t_build, n_chunks, t, k, w, m, d
     like a shift code, minus the zero code) and ``disp2[chunk]`` the largest
     squared displacement (minimum image along periodic axes, Cartesian through
     ``cell``).
-    Returns the first bad input row or -1.
+    Returns (the first bad input row or -1, largest absolute wrapped coordinate,
+    largest absolute wrap shift).
     """
     n = x.shape[0]
     bad = np.full(n_chunks, -1, np.int64)
+    ext = np.zeros(n_chunks)
+    kext = np.zeros(n_chunks, np.int64)
     for ch in numba.prange(n_chunks):
         lo = ch * n // n_chunks
         hi = (ch + 1) * n // n_chunks
         mx = 0.0
+        wm = 0.0
+        km = np.int64(0)
         for p in range(lo, hi):
             i = perm[p]
             if not _wrap_one(x, i, hinv, cell, diag, pbc, t, k, w, p):
                 if bad[ch] < 0:
                     bad[ch] = i
+            for c in range(3):
+                a = abs(w[p, c])
+                wm = a if a > wm else wm
+                kc = abs(k[p, c])
+                km = kc if kc > km else km
             f0 = t[p, 0] - t_build[p, 0]
             f1 = t[p, 1] - t_build[p, 1]
             f2 = t[p, 2] - t_build[p, 2]
@@ -240,10 +387,16 @@ def wrap_sorted(x, perm, hinv, cell, diag, pbc, t_build, n_chunks, t, k, w, m, d
             if not d2 <= mx:  # also catches nan
                 mx = d2 if d2 == d2 else np.inf
         disp2[ch] = mx
+        ext[ch] = wm
+        kext[ch] = km
+    extent = 0.0
+    kmax = np.int64(0)
     for ch in range(n_chunks):
         if bad[ch] >= 0:
-            return bad[ch]
-    return -1
+            return bad[ch], extent, kmax
+        extent = max(extent, ext[ch])
+        kmax = max(kmax, kext[ch])
+    return -1, extent, kmax
 
 
 # ------------------------------------------------------------------ sorting
@@ -377,21 +530,13 @@ def _step(q, k, kf, lo, hi, wrap):
 
 
 @ijit
-def _hit(d2, thr, strict, uniform, x2):
-    """The exact test ``d <= thr`` (``d < thr`` if strict) with ``d = sqrt(d2)``;
-    with one threshold for every pair (``uniform``) it is ``d2 <= x2``, ``x2`` the
-    largest double whose rounded square root passes (the same answer, no sqrt)."""
-    if uniform:
-        return d2 <= x2
-    d = math.sqrt(d2)
-    return (d < thr) | ((not strict) & (d == thr))
-
-
-@ijit
-def _pair_test(q, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az, bx, by, bz, cx, cy, cz,
-               xp, yp, zp, rp, lp, self_images, skin, strict, uniform, x2):
+def _pair_test(q, p, xs, ys, zs, ls, use_label, diag, ax, ay, az, bx, by, bz, cx, cy, cz,
+               xp, yp, zp, lp, self_images):
     """Separation of ``p`` to ``q`` seen through one lattice shift (``ax..cz`` its
-    terms, added in ``_separation``'s order) and the exact test; (ok, d2, dx, dy, dz)."""
+    terms, added in ``_separation``'s order) and whether the pair may be one (not
+    a particle with itself unless ``self_images``, not one label); (ok, d2, dx,
+    dy, dz).  The caller applies the threshold (``_decide``).  (At most 30
+    arguments: CPython passes more as a tuple, which numba cannot inline.)"""
     if diag:  # the other terms of _separation's sum are zeros: no square changes
         dx = (xs[q] - xp) + ax
         dy = (ys[q] - yp) + by
@@ -401,11 +546,7 @@ def _pair_test(q, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az, bx, by, bz
         dy = (((ys[q] - yp) + ay) + by) + cy
         dz = (((zs[q] - zp) + az) + bz) + cz
     d2 = dx * dx + dy * dy + dz * dz
-    if uniform:
-        ok = d2 <= x2
-    else:
-        ok = _hit(d2, rp + rs[q] + skin, strict, False, x2)
-    ok = ok & ((p != q) | self_images)
+    ok = (p != q) | self_images
     if use_label:
         ok = ok & (lp != ls[q])
     return ok, d2, dx, dy, dz
@@ -414,8 +555,8 @@ def _pair_test(q, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay, az, bx, by, bz
 @jit
 def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label,
                  cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform,
-                 x2, words, rec_p, rec_q, rec_s, wbase, wcap, levels, big, r_small,
-                 stencil_big, verlet):
+                 x2, in2, out2, dtol, exact, xg, perm, kp, words, rec_p, rec_q, rec_s, wbase,
+                 wcap, levels, big, r_small, stencil_big, verlet):
     """Pass 1 of a direct frame: test every candidate of the columns
     ``[c_lo, c_hi)`` and keep the outcome as records (``records_fill`` reads
     them): a 64-bit mask of the pairs found among up to 64 consecutive
@@ -425,6 +566,13 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
     records are a Verlet list instead, the pairs within ``rs[p] + rs[q] +
     skin`` (the caller's skin holding the margin) by the squared test a hair
     wide (a superset), re-tested every frame by ``records_narrow``.
+
+    The test is the agreed arithmetic on the given positions (see "the one
+    arithmetic" above): ``in2``, ``out2``, ``dtol`` and ``exact`` are the
+    frame's ``band`` (its ``lo2``, ``hi2``, ...); a pair within it is re-tested
+    on ``xg`` (input order) through ``perm`` and the wrap shifts ``kp`` (column
+    order).  A Verlet build passes an exact band (its superset holds the band
+    in ``skin``).
 
     For each column of the stencil, two pointers walk it while ``p`` walks its
     own sorted column (Algorithm 1's sweep of one sorted list against another):
@@ -445,8 +593,9 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
     cnt = 0
     tested = 0
     w = 0
-    fast = diag and uniform and not use_label
+    fast = diag and uniform and not use_label and not levels
     loose = 1.0 + 1e-12
+    skin_sup = skin + dtol  # the supersets hold the band
     p2 = pbc[2]
     for col in range(c_lo, c_hi):
       lo_c = start[col]
@@ -561,7 +710,7 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                         # unsigned indices need no wraparound fix (so the loops
                         # vectorise) and, unlike slices, no reference counting
                         ub = np.uint64(base)
-                        if fast:
+                        if fast and exact:
                             # the common case written out, so that it vectorises
                             pt = p - base
                             for t in range(top - base):
@@ -572,6 +721,28 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                                 ok = ((dx * dx + dy * dy + dz * dz <= x2)
                                       & ((pt != t) | self_images))
                                 word |= np.uint64(ok) << np.uint64(t)
+                        elif fast:
+                            # the same with the band: ``word`` the pairs up to out2,
+                            # ``inner`` those clearly in; the rest is re-tested
+                            pt = p - base
+                            inner = np.uint64(0)
+                            for t in range(top - base):
+                                u = ub + np.uint64(t)
+                                dx = (xs[u] - xp) + ax
+                                dy = (ys[u] - yp) + by
+                                dz = (zs[u] - zp) + cz
+                                d2 = dx * dx + dy * dy + dz * dz
+                                ok = (d2 <= out2) & ((pt != t) | self_images)
+                                word |= np.uint64(ok) << np.uint64(t)
+                                inner |= np.uint64(d2 <= in2) << np.uint64(t)
+                            bits = word & ~inner
+                            while bits:
+                                t = cttz(bits)
+                                bits &= bits - np.uint64(1)
+                                if not _reference_hit(xg, perm, kp, p, base + np.int64(t),
+                                                      cell, s0, s1, ka, 0.0, strict, True,
+                                                      x2):
+                                    word &= ~(np.uint64(1) << t)
                         else:
                             # a vectorised superset first (squared, a relative hair
                             # wide), then the exact test on the few bits it sets
@@ -585,7 +756,7 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                                     dx = (xs[u] - xp) + ax
                                     dy = (ys[u] - yp) + by
                                     dz = (zs[u] - zp) + cz
-                                    thr = rp + rs[u] + skin
+                                    thr = rp + rs[u] + skin_sup
                                     ok = dx * dx + dy * dy + dz * dz <= thr * thr * loose
                                     if levels:
                                         ok = ok & ((big[u] == 0) | (second & (pt < t)))
@@ -596,7 +767,7 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                                     dx = (((xs[u] - xp) + ax) + bx) + cx
                                     dy = (((ys[u] - yp) + ay) + by) + cy
                                     dz = (((zs[u] - zp) + az) + bz) + cz
-                                    thr = rp + rs[u] + skin
+                                    thr = rp + rs[u] + skin_sup
                                     ok = dx * dx + dy * dy + dz * dz <= thr * thr * loose
                                     if levels:
                                         ok = ok & ((big[u] == 0) | (second & (pt < t)))
@@ -612,9 +783,11 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                                         ok = ok & (lp != ls[q2])
                                 else:
                                     ok, d2, dx, dy, dz = _pair_test(
-                                        q2, p, xs, ys, zs, rs, ls, use_label, diag, ax, ay,
-                                        az, bx, by, bz, cx, cy, cz, xp, yp, zp, rp, lp,
-                                        self_images, skin, strict, uniform, x2)
+                                        q2, p, xs, ys, zs, ls, use_label, diag, ax, ay, az,
+                                        bx, by, bz, cx, cy, cz, xp, yp, zp, lp, self_images)
+                                    ok = ok and _decide(d2, rp + rs[q2] + skin, strict,
+                                                        uniform, x2, in2, out2, dtol, xg,
+                                                        perm, kp, p, q2, cell, s0, s1, ka)
                                 if not ok:
                                     word &= ~(np.uint64(1) << t)
                         if word:
@@ -632,10 +805,12 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
 
 @jit
 def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls, use_label,
-                  cell, diag, self_images, skin, strict, uniform, x2, perm, kw, want_d,
-                  want_vec, want_shift, out_p, out_d, out_v, out_s):
+                  cell, diag, self_images, skin, strict, uniform, x2, perm, kw, xg, exact,
+                  want_d, want_vec, want_shift, out_p, out_d, out_v, out_s):
     """Pass 2 of a direct frame: write the pairs of records ``[r_lo, r_hi)`` from
-    slot ``o`` (rows as ``narrow_fill``'s)."""
+    slot ``o`` (rows as ``narrow_fill``'s).  Distances and vectors are the agreed
+    arithmetic's: the sweep's own sum in an ``exact`` frame, else the sum on the
+    given positions ``xg`` with the shift relative to them."""
     uo = np.uint64(o)
     for r in range(r_lo, r_hi):
         p = np.int64(rec_p[r])
@@ -660,8 +835,16 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
             # unsigned indices: no negative-index fix on every access
             q = ubase + cttz(word)
             word &= word - np.uint64(1)
+            iq = perm[q]
+            g0 = s0
+            g1 = s1
+            g2 = s2
+            if want_shift or not exact:  # (kw is read only then)
+                g0, g1, g2 = _given_shift(kw, p, q, s0, s1, s2)
             # a pair of pass 1: only its separation is needed (_pair_test's sum)
-            if diag:
+            if not exact:
+                dx, dy, dz = _separation(xg, ip, iq, cell, g0, g1, g2)
+            elif diag:
                 dx = (xs[q] - xp) + ax
                 dy = (ys[q] - yp) + by
                 dz = (zs[q] - zp) + cz
@@ -670,7 +853,6 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
                 dy = (((ys[q] - yp) + ay) + by) + cy
                 dz = (((zs[q] - zp) + az) + bz) + cz
             d2 = dx * dx + dy * dy + dz * dz
-            iq = perm[q]
             flip = iq < ip
             out_p[uo, 0] = min(ip, iq)
             out_p[uo, 1] = max(ip, iq)
@@ -679,8 +861,7 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
             if want_vec:
                 _store3(out_v, uo, dx, dy, dz, flip)
             if want_shift:
-                _store3(out_s, uo, s0 - kw[q, 0] + kw[p, 0], s1 - kw[q, 1] + kw[p, 1],
-                        s2 - kw[q, 2] + kw[p, 2], flip)
+                _store3(out_s, uo, g0, g1, g2, flip)
             uo += np.uint64(1)
     return np.int64(uo)
 
@@ -688,8 +869,8 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
 @pjit
 def direct_count(chunk_cols, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell,
                  diag, stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform, x2,
-                 words, rec_p, rec_q, rec_s, wstart, wcap, counts, tested, wneed, todo,
-                 levels, big, r_small, stencil_big, verlet):
+                 lo2, hi2, dtol, exact, xg, perm, kp, words, rec_p, rec_q, rec_s, wstart,
+                 wcap, counts, tested, wneed, todo, levels, big, r_small, stencil_big, verlet):
     """Pass 1 of a direct frame (no Verlet list) for every chunk marked in
     ``todo``: its pairs into ``counts``, its records into ``wneed`` (kept when
     they fit its ``wcap``)."""
@@ -700,26 +881,26 @@ def direct_count(chunk_cols, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
         counts[c], tested[c], wneed[c] = _sweep_chunk(
             chunk_cols[c], chunk_cols[c + 1], start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls,
             use_label, cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict,
-            uniform, x2, words, rec_p, rec_q, rec_s, wstart[c], wcap[c], levels, big, r_small,
-            stencil_big, verlet)
+            uniform, x2, lo2, hi2, dtol, exact, xg, perm, kp, words, rec_p, rec_q, rec_s,
+            wstart[c], wcap[c], levels, big, r_small, stencil_big, verlet)
 
 
 @pjit
 def direct_fill(wstart, wneed, offsets, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
                 use_label, cell, diag, self_images, skin, strict, uniform, x2, perm, kw,
-                want_d, want_vec, want_shift, out_p, out_d, out_v, out_s):
+                xg, exact, want_d, want_vec, want_shift, out_p, out_d, out_v, out_s):
     """Pass 2 of a direct frame: chunk ``c``'s pairs from ``offsets[c]``."""
     for c in numba.prange(wstart.shape[0]):
         _records_fill(wstart[c], wstart[c] + wneed[c], offsets[c], words, rec_p, rec_q,
                       rec_s, xs, ys, zs, rs, ls, use_label, cell, diag, self_images, skin,
-                      strict, uniform, x2, perm, kw, want_d, want_vec, want_shift, out_p,
-                      out_d, out_v, out_s)
+                      strict, uniform, x2, perm, kw, xg, exact, want_d, want_vec,
+                      want_shift, out_p, out_d, out_v, out_s)
 
 
 @pjit
 def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, rec_s, ws, m,
-                   rs, skin, cell, diag, strict, uniform, x2, perm, kw, want_d, want_vec,
-                   want_shift, out_p, out_d, out_v, out_s, out_e):
+                   rs, skin, cell, diag, strict, uniform, x2, lo2, hi2, dtol, exact, xg, perm,
+                   kw, want_d, want_vec, want_shift, out_p, out_d, out_v, out_s, out_e):
     """A Verlet frame on a list of records: pass 1 (``fill`` False) counts each
     chunk's pairs in range into ``counts``, pass 2 writes them from
     ``offsets[c]`` (rows as ``narrow_fill``'s; ``out_e``, unless empty, the
@@ -727,7 +908,11 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
     by the image jumps of its two particles since the build, as ``_entry`` does
     (the record's shift, with ``p``'s jump, serves every partner that jumped as
     ``p`` did, usually all); ``uniform`` and ``x2`` as for ``_hit``, ``diag`` a
-    diagonal cell."""
+    diagonal cell.  The test and the outputs follow the agreed arithmetic:
+    the count pass decides by the frame's ``band`` (``lo2``, ``hi2``, ``dtol``,
+    ``exact``), re-testing the band on the given positions ``xg`` with the wrap
+    shifts ``kw``; the fill pass of a frame that is not exact computes every
+    pair on ``xg`` (the same decisions, so the counts hold)."""
     incl = not strict
     want_e = out_e.shape[0] > 0
     for c in numba.prange(wstart.shape[0]):
@@ -762,7 +947,13 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
                 word &= word - np.uint64(1)
                 mq = m[q]
                 s0, s1, s2 = t0, t1, t2
-                if mq == 0:
+                if mq != 0:
+                    s0, s1, s2 = decode(code - mq)
+                if fill and not exact:
+                    # the agreed arithmetic itself, for the outputs
+                    g0, g1, g2 = _given_shift(kw, p, q, s0, s1, s2)
+                    dx, dy, dz = _separation(xg, ip, perm[q], cell, g0, g1, g2)
+                elif mq == 0:
                     if diag:
                         dx = (ws[q, 0] - xp) + ax
                         dy = (ws[q, 1] - yp) + by
@@ -772,11 +963,11 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
                         dy = (((ws[q, 1] - yp) + ay) + by) + cy
                         dz = (((ws[q, 2] - zp) + az) + bz) + cz
                 else:
-                    s0, s1, s2 = decode(code - mq)
                     dx, dy, dz = _separation(ws, p, q, cell, s0, s1, s2)
                 d2 = dx * dx + dy * dy + dz * dz
                 if not fill:
-                    cnt += np.int64(_hit(d2, rp + rs[q] + skin, strict, uniform, x2))
+                    cnt += np.int64(_decide(d2, rp + rs[q] + skin, strict, uniform, x2, lo2,
+                                            hi2, dtol, xg, perm, kw, p, q, cell, s0, s1, s2))
                     continue
                 if o >= end:
                     break
@@ -792,8 +983,8 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
                 if want_vec:
                     _store3(out_v, o, dx, dy, dz, flip)
                 if want_shift:
-                    _store3(out_s, o, s0 - kw[q, 0] + kw[p, 0], s1 - kw[q, 1] + kw[p, 1],
-                            s2 - kw[q, 2] + kw[p, 2], flip)
+                    g0, g1, g2 = _given_shift(kw, p, q, s0, s1, s2)
+                    _store3(out_s, o, g0, g1, g2, flip)
                 if want_e:
                     out_e[o] = 64 * r + np.int64(q - ubase)
                 o += np.int64(ok)
@@ -811,20 +1002,21 @@ def _entry(code, m, p, q):
 
 
 @pjit
-def narrow_count(chunk_rows, vstart, vstop, vb, vs, ws, m, rs, skin, cell, strict,
-                 counts):
-    """Pairs in range per chunk of rows (pass 1 of a frame)."""
+def narrow_count(chunk_rows, vstart, vstop, vb, vs, ws, m, rs, skin, cell, strict, uniform,
+                 x2, lo2, hi2, dtol, xg, perm, kw, counts):
+    """Pairs in range per chunk of rows (pass 1 of a frame), decided by the
+    frame's band as ``records_narrow``'s count pass."""
     n_chunks = chunk_rows.shape[0] - 1
-    incl = not strict
     for c in numba.prange(n_chunks):
         cnt = 0
         for p in range(chunk_rows[c], chunk_rows[c + 1]):
             for e in range(vstart[p], vstop[p]):
                 q = vb[e]
                 s0, s1, s2 = _entry(vs[e], m, p, q)
-                d = _distance(ws, p, q, cell, s0, s1, s2)
-                thr = rs[p] + rs[q] + skin
-                cnt += np.int64((d < thr) | (incl & (d == thr)))
+                dx, dy, dz = _separation(ws, p, q, cell, s0, s1, s2)
+                cnt += np.int64(_decide(dx * dx + dy * dy + dz * dz, rs[p] + rs[q] + skin,
+                                        strict, uniform, x2, lo2, hi2, dtol, xg, perm, kw, p,
+                                        q, cell, s0, s1, s2))
         counts[c] = cnt
 
 
@@ -843,8 +1035,8 @@ def _store3(out, o, a, b, c, flip):
 
 @pjit
 def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, rs, skin,
-                cell, strict, perm, kw, want_d, want_vec, want_shift, out_p, out_d, out_v,
-                out_s, out_e):
+                cell, strict, exact, xg, perm, kw, want_d, want_vec, want_shift, out_p, out_d,
+                out_v, out_s, out_e):
     """Write each chunk's pairs from ``offsets[c]`` (pass 2 of a frame).
 
     Rows are ``(i, j)`` original indices with ``i < j``; the vector and shift
@@ -853,7 +1045,8 @@ def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, rs, s
     candidate is written to the next free slot and the slot is kept only if
     the pair is in range (no unpredictable branch); a chunk never writes past
     its own ``counts[c]`` slots.  ``out_e``, unless empty, gets the entry of
-    each row (its index in ``vb``).
+    each row (its index in ``vb``).  Outside an ``exact`` frame every pair is
+    computed on the given positions ``xg`` (the agreed arithmetic).
     """
     n_chunks = chunk_rows.shape[0] - 1
     incl = not strict
@@ -868,24 +1061,28 @@ def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, rs, s
             for e in range(vstart[p], vstop[p]):
                 q = vb[e]
                 s0, s1, s2 = _entry(vs[e], m, p, q)
-                d = _distance(ws, p, q, cell, s0, s1, s2)
+                iq = perm[q]
+                if exact:
+                    dx, dy, dz = _separation(ws, p, q, cell, s0, s1, s2)
+                else:
+                    g0, g1, g2 = _given_shift(kw, p, q, s0, s1, s2)
+                    dx, dy, dz = _separation(xg, ip, iq, cell, g0, g1, g2)
+                d = math.sqrt(dx * dx + dy * dy + dz * dz)
                 thr = rs[p] + rs[q] + skin
                 ok = (d < thr) | (incl & (d == thr))
                 if o >= end:
                     break
-                iq = perm[q]
                 flip = iq < ip
                 out_p[o, 0] = min(ip, iq)
                 out_p[o, 1] = max(ip, iq)
                 if want_d:
                     out_d[o] = d
                 if want_vec:
-                    dx, dy, dz = _separation(ws, p, q, cell, s0, s1, s2)
                     _store3(out_v, o, dx, dy, dz, flip)
                 if want_shift:
                     # w = x - k @ cell:  D = x_q - x_p + (S - k_q + k_p) @ cell
-                    _store3(out_s, o, s0 - kw[q, 0] + kw[p, 0], s1 - kw[q, 1] + kw[p, 1],
-                            s2 - kw[q, 2] + kw[p, 2], flip)
+                    g0, g1, g2 = _given_shift(kw, p, q, s0, s1, s2)
+                    _store3(out_s, o, g0, g1, g2, flip)
                 if want_e:
                     out_e[o] = e
                 o += np.int64(ok)
@@ -926,17 +1123,20 @@ def csr_from_pairs(n, pairs, dist, want_d, offsets, col, cd):
 @jit
 def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, strict,
                 uniform, x2, guard_rel, r_small, fresh, prev, t, k, w, col, perm, start,
-                cursor, tz, xs, ys, zs, rs, ls, big, stencil, words, rec_p, rec_q, rec_s):
+                cursor, tz, xs, ys, zs, rs, ls, big, stencil, words, rec_p, rec_q, rec_s, kp):
     """Wrap, plan, sort, gather and sweep one frame (serial, minimum image, no
     Verlet list): the steps of ``search._build`` and ``direct_count`` on one
     chunk.  ``r_small > 0`` asks for two column levels split at that radius.
     Returns (first bad input row, -1, or -2 for a stencil larger than
-    ``stencil``; pairs, candidates tested, records needed, nb0, nb1); the
-    records are kept while they fit ``words``."""
+    ``stencil``; pairs, candidates tested, records needed, nb0, nb1, whether
+    the frame is exact); the records are kept while they fit ``words``.  The
+    wrap shifts in column order go to ``kp``; the pair test is the agreed
+    arithmetic on ``x`` (the frame's ``band``)."""
     n = x.shape[0]
     bad = -1
     extent = 0.0
     rmax = 0.0
+    kmax = np.int64(0)
     for i in range(n):
         if not _wrap_one(x, i, hinv, cell, diag, pbc, t, k, w, i):
             if bad < 0:
@@ -944,12 +1144,16 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
         for c in range(3):
             a = abs(w[i, c])
             extent = a if a > extent else extent
+            kc = abs(k[i, c])
+            kmax = kc if kc > kmax else kmax
         rmax = rad[i] if rad[i] > rmax else rmax
     if bad >= 0 or n == 0:
-        return bad, 0, 0, 0, 1, 1
+        return bad, 0, 0, 0, 1, 1, True
+    lo2, hi2, dtol, exact = frame_band(extent, kmax, cell, pbc, widths, 2.0 * rmax + skin,
+                                       2.0 * rmax + skin, x2)
     extent = extent + 2.0 * rmax + skin
     guard = guard_rel * extent + 2.2250738585072014e-308
-    reach = skin + guard
+    reach = skin + guard + dtol
     lo0 = 0.0
     lo1 = 0.0
     span0 = 1.0
@@ -1020,7 +1224,7 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
     if n_st > stencil.shape[0]:
         # columns a rounding narrower than the range can need two layers: the
         # caller has room for those; anything wider goes to the general path
-        return -2, 0, 0, 0, nb0, nb1
+        return -2, 0, 0, 0, nb0, nb1, exact
     stencil_big = np.empty(((2 * B0 + 1) * (2 * B1 + 1) if levels else 0, 2), np.int64)
     if levels:
         j = 0
@@ -1084,22 +1288,26 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
             ls[p] = label[i]
         if levels:
             big[p] = np.uint8(rs[p] > r_small)
+        kp[p, 0] = k[i, 0]
+        kp[p, 1] = k[i, 1]
+        kp[p, 2] = k[i, 2]
     chunk_start = start[:ncol + 1]
     cnt, tested, need = _sweep_chunk(
         0, ncol, chunk_start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell, diag,
-        stencil[:n_st], rmax, reach, 1.0 / widths[2], False, skin, strict, uniform, x2, words,
-        rec_p, rec_q, rec_s, 0, words.shape[0], levels, big, r_small, stencil_big, False)
-    return -1, cnt, tested, need, nb0, nb1
+        stencil[:n_st], rmax, reach, 1.0 / widths[2], False, skin, strict, uniform, x2, lo2,
+        hi2, dtol, exact, x, perm, kp, words, rec_p, rec_q, rec_s, 0, words.shape[0], levels,
+        big, r_small, stencil_big, False)
+    return -1, cnt, tested, need, nb0, nb1, exact
 
 
 @jit
 def small_fill(need, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls, use_label, cell, diag,
-               skin, strict, uniform, x2, perm, kw, want_d, want_vec, want_shift, out_p, out_d,
-               out_v, out_s):
+               skin, strict, uniform, x2, perm, kw, x, exact, want_d, want_vec, want_shift,
+               out_p, out_d, out_v, out_s):
     """Pass 2 of ``small_count``'s frame: the pairs of its records, in order."""
     return _records_fill(0, need, 0, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
                          use_label, cell, diag, False, skin, strict, uniform, x2, perm, kw,
-                         want_d, want_vec, want_shift, out_p, out_d, out_v, out_s)
+                         x, exact, want_d, want_vec, want_shift, out_p, out_d, out_v, out_s)
 
 
 # ------------------------------------------------------------ serial twins
