@@ -438,7 +438,11 @@ class TestFarOutsideTheCell:
         near = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [5.0, 5.0, 5.0]])  # 1e20 = 1e14 cells
         pairs, d = _within(60, granularsap.neighbor_pairs, pos, 1.5, box=box)
         want, wd = granularsap.neighbor_pairs(near, 1.5, box=box)
-        assert np.array_equal(pairs, want) and np.allclose(d, wd)
+        assert np.array_equal(pairs, want) and wd.tolist() == [1.0]
+        # the distance is the documented arithmetic on the positions as given
+        # (docs/cells.md, Arithmetic): (1 - 1e20) + 1e14 * 1e6 rounds to 0, one ulp
+        # of 1e20 being 16384 -- not the 1.0 of the wrapped copy
+        assert d.tolist() == [abs((pos[1, 0] - pos[0, 0]) + 1e14 * 1e6)] == [0.0]
         got = _within(60, granularsap.sphere_contacts, pos, [0.6, 0.6, 0.6], box=box)
         assert np.array_equal(got, granularsap.sphere_contacts(near, [0.6] * 3, box=box))
 
