@@ -218,6 +218,15 @@ def _given_shift(kp, p, q, s0, s1, s2):
 
 
 @ijit
+def _unwrapped(kp, p):
+    """Whether ``p`` (column order) was not wrapped: its wrapped position is its
+    given one bit for bit (``_wrap_one`` subtracts nothing), so a pair of two
+    such particles is summed on ``w`` exactly as the agreed arithmetic sums it
+    on ``x``, with the same shift."""
+    return (kp[p, 0] == 0) & (kp[p, 1] == 0) & (kp[p, 2] == 0)
+
+
+@ijit
 def _hit(d2, thr, strict, uniform, x2):
     """The exact test ``d <= thr`` (``d < thr`` if strict) with ``d = sqrt(d2)``;
     with one threshold for every pair (``uniform``) it is ``d2 <= x2``, ``x2`` the
@@ -241,18 +250,19 @@ def _reference_hit(xg, perm, kp, p, q, cell, s0, s1, s2, thr, strict, uniform, x
 def _decide(d2, thr, strict, uniform, x2, lo2, hi2, dtol, xg, perm, kp, p, q, cell, s0, s1,
             s2):
     """The agreed test from the squared wrapped separation ``d2``: clearly in or
-    out by the band of ``band``, else re-tested on the given positions."""
+    out by the band of ``band``, else re-tested on the given positions.
+
+    The clear cases take one well-predicted branch and return the test's value
+    (about half the candidates are in, in no order a branch could learn)."""
     if uniform:
-        if d2 <= lo2:
-            return True
-        if not d2 <= hi2:
-            return False
+        clear_in = d2 <= lo2
+        if clear_in | (not d2 <= hi2):
+            return clear_in
     else:
         d = math.sqrt(d2)
-        if d < thr - dtol:
-            return True
-        if not d <= thr + dtol:
-            return False
+        clear_in = d < thr - dtol
+        if clear_in | (not d <= thr + dtol):
+            return clear_in
         if dtol == 0.0:  # an exact frame: d == thr
             return not strict
     return _reference_hit(xg, perm, kp, p, q, cell, s0, s1, s2, thr, strict, uniform, x2)
@@ -809,8 +819,9 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
                   want_d, want_vec, want_shift, out_p, out_d, out_v, out_s):
     """Pass 2 of a direct frame: write the pairs of records ``[r_lo, r_hi)`` from
     slot ``o`` (rows as ``narrow_fill``'s).  Distances and vectors are the agreed
-    arithmetic's: the sweep's own sum in an ``exact`` frame, else the sum on the
-    given positions ``xg`` with the shift relative to them."""
+    arithmetic's: the sweep's own sum in an ``exact`` frame and for pairs of
+    two particles not wrapped (``_unwrapped``), else the sum on the given
+    positions ``xg`` with the shift relative to them."""
     uo = np.uint64(o)
     for r in range(r_lo, r_hi):
         p = np.int64(rec_p[r])
@@ -829,6 +840,8 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
         yp = ys[p]
         zp = zs[p]
         ip = perm[p]
+        # only pairs with a wrapped end need the sum on the given positions
+        plain = exact or _unwrapped(kw, p)
         word = words[r]
         ubase = np.uint64(base)
         while word:
@@ -842,7 +855,7 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
             if want_shift or not exact:  # (kw is read only then)
                 g0, g1, g2 = _given_shift(kw, p, q, s0, s1, s2)
             # a pair of pass 1: only its separation is needed (_pair_test's sum)
-            if not exact:
+            if not exact and not (plain and _unwrapped(kw, q)):
                 dx, dy, dz = _separation(xg, ip, iq, cell, g0, g1, g2)
             elif diag:
                 dx = (xs[q] - xp) + ax
@@ -912,7 +925,8 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
     the count pass decides by the frame's ``band`` (``lo2``, ``hi2``, ``dtol``,
     ``exact``), re-testing the band on the given positions ``xg`` with the wrap
     shifts ``kw``; the fill pass of a frame that is not exact computes every
-    pair on ``xg`` (the same decisions, so the counts hold)."""
+    pair with a wrapped end on ``xg`` (``_unwrapped``: the others' sum on ``ws``
+    is the same one; the same decisions, so the counts hold)."""
     incl = not strict
     want_e = out_e.shape[0] > 0
     for c in numba.prange(wstart.shape[0]):
@@ -940,6 +954,8 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
             zp = ws[p, 2]
             rp = rs[p]
             ip = perm[p]
+            # only pairs with a wrapped end need the sum on the given positions
+            plain = exact or _unwrapped(kw, p)
             word = words[r]
             ubase = np.uint64(base)
             while word:
@@ -949,7 +965,7 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
                 s0, s1, s2 = t0, t1, t2
                 if mq != 0:
                     s0, s1, s2 = decode(code - mq)
-                if fill and not exact:
+                if fill and not exact and not (plain and _unwrapped(kw, q)):
                     # the agreed arithmetic itself, for the outputs
                     g0, g1, g2 = _given_shift(kw, p, q, s0, s1, s2)
                     dx, dy, dz = _separation(xg, ip, perm[q], cell, g0, g1, g2)
@@ -966,8 +982,12 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
                     dx, dy, dz = _separation(ws, p, q, cell, s0, s1, s2)
                 d2 = dx * dx + dy * dy + dz * dz
                 if not fill:
-                    cnt += np.int64(_decide(d2, rp + rs[q] + skin, strict, uniform, x2, lo2,
-                                            hi2, dtol, xg, perm, kw, p, q, cell, s0, s1, s2))
+                    if exact:  # no band: the plain test, without a branch
+                        cnt += np.int64(_hit(d2, rp + rs[q] + skin, strict, uniform, x2))
+                    else:
+                        cnt += np.int64(_decide(d2, rp + rs[q] + skin, strict, uniform, x2,
+                                                lo2, hi2, dtol, xg, perm, kw, p, q, cell, s0,
+                                                s1, s2))
                     continue
                 if o >= end:
                     break
@@ -1014,9 +1034,13 @@ def narrow_count(chunk_rows, vstart, vstop, vb, vs, ws, m, rs, skin, cell, stric
                 q = vb[e]
                 s0, s1, s2 = _entry(vs[e], m, p, q)
                 dx, dy, dz = _separation(ws, p, q, cell, s0, s1, s2)
-                cnt += np.int64(_decide(dx * dx + dy * dy + dz * dz, rs[p] + rs[q] + skin,
-                                        strict, uniform, x2, lo2, hi2, dtol, xg, perm, kw, p,
-                                        q, cell, s0, s1, s2))
+                d2 = dx * dx + dy * dy + dz * dz
+                if lo2 == hi2 and dtol == 0.0:  # an exact frame: the plain test
+                    cnt += np.int64(_hit(d2, rs[p] + rs[q] + skin, strict, uniform, x2))
+                else:
+                    cnt += np.int64(_decide(d2, rs[p] + rs[q] + skin, strict, uniform, x2,
+                                            lo2, hi2, dtol, xg, perm, kw, p, q, cell, s0, s1,
+                                            s2))
         counts[c] = cnt
 
 
@@ -1045,8 +1069,9 @@ def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, rs, s
     candidate is written to the next free slot and the slot is kept only if
     the pair is in range (no unpredictable branch); a chunk never writes past
     its own ``counts[c]`` slots.  ``out_e``, unless empty, gets the entry of
-    each row (its index in ``vb``).  Outside an ``exact`` frame every pair is
-    computed on the given positions ``xg`` (the agreed arithmetic).
+    each row (its index in ``vb``).  Outside an ``exact`` frame every pair with
+    a wrapped end is computed on the given positions ``xg`` (the agreed
+    arithmetic; ``_unwrapped``).
     """
     n_chunks = chunk_rows.shape[0] - 1
     incl = not strict
@@ -1058,11 +1083,12 @@ def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, rs, s
             if o >= end:
                 break
             ip = perm[p]
+            plain = exact or _unwrapped(kw, p)
             for e in range(vstart[p], vstop[p]):
                 q = vb[e]
                 s0, s1, s2 = _entry(vs[e], m, p, q)
                 iq = perm[q]
-                if exact:
+                if exact or (plain and _unwrapped(kw, q)):
                     dx, dy, dz = _separation(ws, p, q, cell, s0, s1, s2)
                 else:
                     g0, g1, g2 = _given_shift(kw, p, q, s0, s1, s2)
