@@ -292,18 +292,6 @@ def sort_columns(chunk_cols, start, perm, lower, upper, c0, c1, z, fresh, xl, xu
 
 
 @ijit
-def _first_after(zl, perm, lo, hi, k, i):
-    """First position in ``[lo, hi)`` whose ``(zl, id)`` comes after ``(k, i)``."""
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if _before(k, i, zl[mid], perm[mid]):
-            hi = mid
-        else:
-            lo = mid + 1
-    return lo
-
-
-@ijit
 def _scan(q, e, top, pxl, pxu, pyl, pyu, ip, xl, xu, yl, yu, zl, perm, out, base, pos, cap):
     """Test ``q, q + 1, ...`` (below ``e``) while ``zl[q] <= top``: the boxes that
     overlap ``p`` on the sweep axis; the column axes decide.  Returns
