@@ -1035,7 +1035,7 @@ def narrow_count(chunk_rows, vstart, vstop, vb, vs, ws, m, rs, skin, cell, stric
                 s0, s1, s2 = _entry(vs[e], m, p, q)
                 dx, dy, dz = _separation(ws, p, q, cell, s0, s1, s2)
                 d2 = dx * dx + dy * dy + dz * dz
-                if lo2 == hi2 and dtol == 0.0:  # an exact frame: the plain test
+                if dtol == 0.0:  # an exact frame (no band): the plain test
                     cnt += np.int64(_hit(d2, rs[p] + rs[q] + skin, strict, uniform, x2))
                 else:
                     cnt += np.int64(_decide(d2, rs[p] + rs[q] + skin, strict, uniform, x2,
