@@ -251,7 +251,12 @@ def _warm_search():
 
     import granularsap
 
+    from ._memory import pair_lower_bound
+
     rng = np.random.default_rng(1)
+    # the memory check's count of particles per cell, which only frames whose pairs
+    # might not fit in memory take
+    pair_lower_bound(rng.uniform(0, 1, (100, 3)), np.eye(3), np.ones(3, bool), 0.3)
     for nt, n in _threads():
         pos, radii, clumps, boxes = _inputs(n=n)
         for path in _paths():
@@ -350,28 +355,47 @@ def _warm_boxes():
             sap.update(lower + 0.01, upper + 0.01)  # temporal coherence: the kept order
 
 
+def _slab(n, seed=1):
+    """``n`` particles at the density of :func:`_inputs` in a cell 2.5 wide along x: a
+    cutoff of 2 is beyond half of it (every image) with some 30 pairs a particle, not
+    the millions a cutoff beyond half of a cube of the same particles would give."""
+    import numpy as np
+
+    width = 2.5
+    length = float(np.sqrt(n / width))
+    pos = np.random.default_rng(seed).uniform(0.0, (width, length, length), (n, 3))
+    return pos, width, length
+
+
 def _warm_dropins():
     import numpy as np
 
     for nt, n in _threads():
         pos, radii, _, _ = _inputs(n=n)
         side = 4.0 * (n / 64) ** (1 / 3)
-        x32 = pos.astype(np.float32)
+        cube = (side, side, side)
+        if n <= 64:  # cutoffs below half the cell and beyond it
+            frames = [(pos, cube, (1.5, 0.75 * side))]
+        else:  # many pairs below half the cube; beyond half of a thin cell
+            slab, width, length = _slab(n)
+            frames = [(pos, cube, (1.5,)), (slab, (width, length, length), (2.0,))]
         try:
             from . import mda
         except ImportError:  # pragma: no cover - numpy-only install
             mda = None
         if mda is not None:
-            for box in (None, np.array([side, side, side, 90, 90, 90], np.float32),
-                        np.array([side, side, side, 80, 95, 85], np.float32)):
-                # below half the cell (many pairs on the large frame), beyond it
-                for cut in (1.5, 0.75 * side):
-                    for dist in (True, False):
-                        mda.self_capped_distance(x32, cut, box=box, return_distances=dist,
-                                                 n_threads=nt)
-                        mda.capped_distance(x32[:20], x32, cut, min_cutoff=0.1, box=box,
-                                            return_distances=dist, n_threads=nt)
-            ns = mda.FastNS(0.8, x32, np.array([side, side, side, 90, 90, 90], np.float32),
+            for x, lengths, cuts in frames:
+                x32 = x.astype(np.float32)
+                for box in (None, np.array([*lengths, 90, 90, 90], np.float32),
+                            np.array([*lengths, 80, 95, 85], np.float32)):
+                    for cut in cuts:
+                        for dist in (True, False):
+                            mda.self_capped_distance(x32, cut, box=box,
+                                                     return_distances=dist, n_threads=nt)
+                            mda.capped_distance(x32[:20], x32, cut, min_cutoff=0.1, box=box,
+                                                return_distances=dist, n_threads=nt)
+            x32 = pos.astype(np.float32)
+            ns = mda.FastNS(0.8, x32, np.array([*cube, 90, 90, 90], np.float32),
                             n_threads=nt)
             ns.self_search()
             ns.search(x32[:10])
@@ -380,17 +404,20 @@ def _warm_dropins():
             from .ase_neighborlist import NeighborList
         except ImportError:  # pragma: no cover
             continue
-        cell = np.diag([side, side, side])
         numbers = np.arange(len(pos)) % 3 + 1
         for pbc in ((True, True, True), (True, True, False), (False, False, False)):
-            for cut in (1.5, 0.75 * side, {(1, 1): 0.5, (1, 2): 0.7}):
-                gase.primitive_neighbor_list("ijdDS", pbc, cell, pos, cut, numbers=numbers,
-                                             n_threads=nt)
+            for x, lengths, cuts in frames:
+                for cut in cuts:
+                    gase.primitive_neighbor_list("ijdDS", pbc, np.diag(lengths), x, cut,
+                                                 numbers=numbers, n_threads=nt)
+            gase.primitive_neighbor_list("ijdDS", pbc, np.diag(cube), pos,
+                                         {(1, 1): 0.5, (1, 2): 0.7}, numbers=numbers,
+                                         n_threads=nt)
         try:
             import ase
         except ImportError:  # pragma: no cover
             continue
-        atoms = ase.Atoms(numbers=numbers, positions=pos, cell=cell, pbc=True)
+        atoms = ase.Atoms(numbers=numbers, positions=pos, cell=np.diag(cube), pbc=True)
         nl = NeighborList(radii, n_threads=nt)
         nl.update(atoms)
         atoms.positions += 0.01
