@@ -259,3 +259,32 @@ def test_the_cycle_checker_catches_lazy_and_string_cycles(tmp_path, monkeypatch)
     assert cycles == {"granularsap.back -> granularsap.front -> granularsap.back",
                       "granularsap.sub.command -> granularsap.sub.table -> "
                       "granularsap.sub.command"}
+
+
+def _is_alias(path):
+    doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+    return doc.startswith("Alias of ")
+
+
+def test_the_library_does_not_import_the_command_line():
+    """The command line (granularsap.cli) sits above the library: no module outside it
+    imports it, lazily or by name, except its leaf ``granularsap.cli.errors``; the leaves
+    ``errors`` and ``argtypes`` import nothing of ours.  ``granularsap.__main__`` and the
+    aliases kept for one release (modules whose docstring starts with "Alias of ") are
+    faces themselves."""
+    modules = _our_modules()
+    graph = _graph(modules)
+    found = []
+    for name, edges in sorted(graph.items()):
+        if name.startswith("granularsap.cli.") or name in ("granularsap.cli",
+                                                           "granularsap.__main__"):
+            continue
+        if _is_alias(modules[name]):
+            continue
+        for to in sorted(edges):
+            if (to == "granularsap.cli" or to.startswith("granularsap.cli.")) \
+                    and to != "granularsap.cli.errors":
+                found.append(f"{name} -> {to}")
+    for leaf in ("granularsap.cli.errors", "granularsap.cli.argtypes"):
+        found.extend(f"{leaf} -> {to}" for to in sorted(graph[leaf]))
+    assert found == []
