@@ -12,8 +12,9 @@ Layers, top down (``tests/test_layering.py`` fails on an import cycle):
   :mod:`.errors` (:class:`CLIError`), leaves that import nothing of granularsap;
 - the library (:mod:`granularsap.bench`, :mod:`granularsap.io`,
   :mod:`granularsap.compare`, :mod:`granularsap.warmup`, the engine), which
-  never imports this package: it raises ``ValueError``, ``OSError`` and the
-  like, reported here the same way as a :class:`CLIError` (one line, exit 2).
+  never imports this package (the aliases kept for one release aside): it
+  raises ``ValueError``, ``OSError`` and the like, reported here the same way
+  as a :class:`CLIError` (one line, exit 2).
 """
 
 from __future__ import annotations
