@@ -10,7 +10,7 @@ import pytest
 MODULES = ["granularsap.search", "granularsap.particles", "granularsap.api", "granularsap.cell",
            "granularsap.inputs", "granularsap.periodic", "granularsap.mda", "granularsap.ase",
            "granularsap.ase_neighborlist", "granularsap.mda_fastns", "granularsap._memory",
-           "granularsap.io._lock"]
+           "granularsap.io._lock", "granularsap.cli.argtypes"]
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -127,3 +127,164 @@ def test_the_checker_catches_what_it_should(tmp_path, monkeypatch):
     assert any("private module granularsap._validate" in f for f in found)
     assert any("periodic._complete_cell" in f for f in found)
     assert not any("_cell from" in f or "lammps_bridge._cell" in f for f in found)
+
+
+# --------------------------------------------------------------------------- import cycles
+
+CYCLE_PACKAGES = ("granularsap", "lammps_bridge")
+
+
+def _our_modules():
+    """{dotted name: path} of every module of granularsap and lammps_bridge."""
+    out = {}
+    for pkg in CYCLE_PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            out[".".join(_dotted(path))] = path
+    return out
+
+
+def _import_edges(path, modules):
+    """The modules of ``modules`` that the module at ``path`` can import, at any depth.
+
+    The rule (every edge is one a run may take, whether or not it is taken on import):
+
+    - every ``import a.b`` and ``from a.b import c`` anywhere in the module: at module
+      level, inside functions and methods (lazy imports), under ``try``/``if``;
+    - ``from pkg import name`` is an edge to ``pkg.name`` when that is a module of ours,
+      else to ``pkg`` (its ``__init__``); ``import a.b.c`` is an edge to ``a.b.c``.  The
+      parents a submodule import also runs are not edges: Python has them in
+      ``sys.modules`` before the child runs, so they cannot close a cycle of their own;
+    - every string constant that equals the dotted name of one of our modules and has a
+      dot in it (``"granularsap.io.cli_contacts"`` in a table of subcommands loaded with
+      ``importlib.import_module``, an ``exc.name`` compared to a module): a module named
+      by a string can be loaded by it.  Bare package names (``"granularsap"``) are
+      skipped: they are program, logger and distribution names far more often than
+      imports.
+    """
+    tree = ast.parse(path.read_text(), filename=str(path))
+    here = ".".join(_dotted(path))
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            mod = _resolve(path, node)
+            if not _ours(mod):
+                continue
+            for alias in node.names:
+                sub = ".".join(mod + [alias.name])
+                found.add(sub if sub in modules else ".".join(mod))
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if _ours(alias.name.split(".")):
+                    found.add(alias.name)
+        elif (isinstance(node, ast.Constant) and isinstance(node.value, str)
+                and "." in node.value and node.value in modules):
+            found.add(node.value)
+    return {m for m in found if m in modules and m != here}
+
+
+def _graph(modules):
+    return {name: _import_edges(path, modules) for name, path in modules.items()}
+
+
+def _cycles(graph):
+    """Import cycles as paths ``[a, b, ..., a]``: for every module on a cycle, the shortest
+    cycle through it (breadth first), each cycle once."""
+    seen = set()
+    out = []
+    for start in sorted(graph):
+        parent = {start: None}
+        queue = [start]
+        closing = None
+        while queue and closing is None:
+            nxt = []
+            for node in queue:
+                for to in sorted(graph[node]):
+                    if to == start:
+                        closing = node
+                        break
+                    if to not in parent:
+                        parent[to] = node
+                        nxt.append(to)
+                if closing is not None:
+                    break
+            queue = nxt
+        if closing is None:
+            continue
+        path = [closing]
+        while parent[path[-1]] is not None:
+            path.append(parent[path[-1]])
+        path = path[::-1]  # start ... closing
+        key = frozenset(zip(path, path[1:] + [start], strict=True))
+        if key not in seen:
+            seen.add(key)
+            out.append(path + [start])
+    return out
+
+
+def test_no_import_cycles_through_lazy_imports():
+    """No module of ours can import itself back, counting imports inside functions and
+    modules named by strings (see :func:`_import_edges` for the rule)."""
+    cycles = _cycles(_graph(_our_modules()))
+    assert [" -> ".join(c) for c in cycles] == []
+
+
+def test_the_cycle_checker_catches_lazy_and_string_cycles(tmp_path, monkeypatch):
+    pkg = tmp_path / "granularsap"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("from .core import thing\n")
+    (pkg / "core.py").write_text("thing = 1\n")
+    # a lazy cycle: front imports back at module level, back imports front in a function
+    (pkg / "front.py").write_text("from . import back\n")
+    (pkg / "back.py").write_text("def f():\n    from .front import g\n    return g\n")
+    # an importlib cycle: a table of module names, and the module importing the table back
+    (pkg / "sub" / "__init__.py").write_text("")
+    (pkg / "sub" / "table.py").write_text(
+        "import importlib\n"
+        "COMMANDS = {'go': ('granularsap.sub.command', 'help')}\n"
+        "def load(name):\n    return importlib.import_module(COMMANDS[name][0])\n")
+    (pkg / "sub" / "command.py").write_text(
+        "def run():\n    from granularsap.sub.table import COMMANDS\n    return COMMANDS\n")
+    # not cycles: a parent package, a bare package name as a string, a leaf imported by both
+    (pkg / "leaf.py").write_text("NAME = 'granularsap'\n")
+    (pkg / "user.py").write_text("import granularsap.leaf\nfrom granularsap import core\n")
+    monkeypatch.setitem(globals(), "ROOT", tmp_path)
+    monkeypatch.setitem(globals(), "CYCLE_PACKAGES", ("granularsap",))
+    modules = _our_modules()
+    graph = _graph(modules)
+    assert graph["granularsap.back"] == {"granularsap.front"}
+    assert graph["granularsap.sub.table"] == {"granularsap.sub.command"}
+    assert graph["granularsap.user"] == {"granularsap.leaf", "granularsap.core"}
+    assert graph["granularsap.leaf"] == set()
+    cycles = {" -> ".join(c) for c in _cycles(graph)}
+    assert cycles == {"granularsap.back -> granularsap.front -> granularsap.back",
+                      "granularsap.sub.command -> granularsap.sub.table -> "
+                      "granularsap.sub.command"}
+
+
+def _is_alias(path):
+    doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+    return doc.startswith("Alias of ")
+
+
+def test_the_library_does_not_import_the_command_line():
+    """The command line (granularsap.cli) sits above the library: no module outside it
+    imports it, lazily or by name, except its leaf ``granularsap.cli.errors``; the leaves
+    ``errors`` and ``argtypes`` import nothing of ours.  ``granularsap.__main__`` and the
+    aliases kept for one release (modules whose docstring starts with "Alias of ") are
+    faces themselves."""
+    modules = _our_modules()
+    graph = _graph(modules)
+    found = []
+    for name, edges in sorted(graph.items()):
+        if name.startswith("granularsap.cli.") or name in ("granularsap.cli",
+                                                           "granularsap.__main__"):
+            continue
+        if _is_alias(modules[name]):
+            continue
+        for to in sorted(edges):
+            if (to == "granularsap.cli" or to.startswith("granularsap.cli.")) \
+                    and to != "granularsap.cli.errors":
+                found.append(f"{name} -> {to}")
+    for leaf in ("granularsap.cli.errors", "granularsap.cli.argtypes"):
+        found.extend(f"{leaf} -> {to}" for to in sorted(graph[leaf]))
+    assert found == []

@@ -1,8 +1,20 @@
-"""The ``granularsap`` command line.
+"""The ``granularsap`` command line: the front-ends above the library.
 
-Each subcommand lives in its own module exposing ``add_arguments(parser)`` and
-``run(args) -> int``; heavy imports happen inside ``run`` so that
-``granularsap --help`` stays instant.
+Layers, top down (``tests/test_layering.py`` fails on an import cycle):
+
+- this module: :func:`main` and :func:`build_parser`, which loads the
+  subcommands of :data:`SUBCOMMANDS` by name;
+- one module per subcommand (:mod:`.bench`, :mod:`.contacts`, :mod:`.info`,
+  :mod:`.validate`, :mod:`.warmup`), each ``add_arguments(parser)`` and
+  ``run(args) -> int``, calling into the library; heavy imports happen inside
+  ``run`` so that ``granularsap --help`` stays instant;
+- :mod:`.argtypes` (argument types shared by the subcommands) and
+  :mod:`.errors` (:class:`CLIError`), leaves that import nothing of granularsap;
+- the library (:mod:`granularsap.bench`, :mod:`granularsap.io`,
+  :mod:`granularsap.compare`, :mod:`granularsap.warmup`, the engine), which
+  never imports this package (the aliases kept for one release aside): it
+  raises ``ValueError``, ``OSError`` and the like, reported here the same way
+  as a :class:`CLIError` (one line, exit 2).
 """
 
 from __future__ import annotations
@@ -11,22 +23,24 @@ import argparse
 import importlib
 import sys
 
+from .errors import CLIError
+
 #: subcommand -> (module, one-line help)
 SUBCOMMANDS = {
-    "bench": ("granularsap.bench.cli", "benchmark granularsap against other neighbour searches"),
-    "contacts": ("granularsap.io.cli_contacts", "contacts of every frame of a trajectory to HDF5"),
-    "info": ("granularsap.io.cli_info", "summarise a contacts HDF5 file"),
-    "validate": ("granularsap.validate", "compare granularsap with LAMMPS / MDAnalysis per frame"),
-    "warmup": ("granularsap.warmup", "compile the numba kernels now (they are cached on disk)"),
+    "bench": ("granularsap.cli.bench", "benchmark granularsap against other neighbour searches"),
+    "contacts": ("granularsap.cli.contacts", "contacts of every frame of a trajectory to HDF5"),
+    "info": ("granularsap.cli.info", "summarise a contacts HDF5 file"),
+    "validate": ("granularsap.cli.validate",
+                 "compare granularsap with LAMMPS / MDAnalysis per frame"),
+    "warmup": ("granularsap.cli.warmup",
+               "compile the numba kernels now (they are cached on disk)"),
 }
 
-
-class CLIError(Exception):
-    """An error reported to the user as one line, exit code 2."""
+__all__ = ["SUBCOMMANDS", "CLIError", "build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ._version import __version__
+    from .._version import __version__
 
     parser = argparse.ArgumentParser(
         prog="granularsap",
@@ -91,7 +105,3 @@ def _main(argv):
             raise
         print(f"granularsap {args.command}: error: {exc}", file=sys.stderr)
         return 2
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
