@@ -204,10 +204,6 @@ class SweepAndPrune:
                              f"got {path!r}")
         self._path = None if path == "auto" else path
         self._partitions = None  # override of the number of partitions (tests)
-        #: Boxes are cubes around spheres: keep pairs whose inscribed spheres
-        #: (nearly) touch instead of every overlapping pair (a superset of the
-        #: exact sphere test that follows).
-        self._spheres = False
         self._n = -1
         self._layout = None
         self._bounds = {}
@@ -503,8 +499,7 @@ class SweepAndPrune:
                     events = self._events = np.empty((need + need // 8, 2), np.int64)
                 ok = sw.gather_parallel(self._iy, n, lower, upper, a0, a2, self._info,
                                         self._br, z0, inv_h, nbins, delta, reg_start,
-                                        self._reg_cap, self._reg_count, events,
-                                        self._spheres)
+                                        self._reg_cap, self._reg_count, events)
                 used = self._reg_count
                 self._reg_cap = used + used // 16 + 64
                 if ok:
@@ -518,7 +513,7 @@ class SweepAndPrune:
                 sw.pairing_parallel(events, reg_start, self._reg_count, n, self._br,
                                     self._rinv, self._trees_pair, self._off_part, nbins, z0,
                                     inv_h, reach, self._out, self._pcounts, self._ptested,
-                                    todo, self._spheres)
+                                    todo)
                 need = int(self._pcounts.max())
                 if need <= self._out.shape[1] // 2:
                     break

@@ -18,8 +18,9 @@ array: word ``w`` of level ``d`` of tree ``b`` is ``bits[(off[d] + w) * k + b]``
 Trees that are queried together at the same position (the third-axis shards
 of the pairing phase) then share cache lines.
 
-Algorithm 3 needs the symmetric difference of trees (``xor_leaves``): leaves
-are XOR-ed word by word and the summary levels rebuilt (``rebuild``), O(n/64).
+Algorithm 3 needs the symmetric difference of trees: its kernel
+(``sweep.candidates_parallel``) XORs the leaves word by word and rebuilds the
+summary levels (``rebuild``), O(n/64).
 """
 
 from __future__ import annotations
@@ -106,13 +107,6 @@ def rebuild(bits, off):
         for c in range(off[lev] - off[lev - 1]):
             if bits[child0 + c] != 0:
                 bits[off[lev] + (c >> 6)] |= ONE << np.uint64(c & 63)
-
-
-@jit
-def xor_leaves(dst, src, off):
-    """``dst <- dst (+) src`` on level 0 (symmetric difference); summaries stale."""
-    for k in range(off[1]):
-        dst[k] ^= src[k]
 
 
 @jit

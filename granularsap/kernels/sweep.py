@@ -275,7 +275,7 @@ def _push(events, reg_start, reg_cap, reg_count, t, p, word, lu):
 
 @pjit
 def gather_parallel(iy, n, lower, upper, a0, a2, info, br, z0, inv_h, k, delta,
-                    reg_start, reg_cap, reg_count, events, spheres):
+                    reg_start, reg_cap, reg_count, events):
     """Route the secondary sweep to the rank partitions of Algorithm 4.
 
     Every endpoint of the secondary order goes, in order, to the partition
@@ -302,22 +302,14 @@ def gather_parallel(iy, n, lower, upper, a0, a2, info, br, z0, inv_h, k, delta,
     nchunks = reg_start.shape[0]
     nparts = reg_start.shape[1]
     chunk = (n2 + nchunks - 1) // nchunks
-    a1 = 3 - a0 - a2
     for i in numba.prange(n):
         r = info[i, 0]
         zlo = lower[i, a2]
         info[i, 3] = _bin(zlo, z0, inv_h, k)
-        if spheres:  # centre (primary, secondary, third axis) and half-width
-            br[r, 0] = 0.5 * (lower[i, a0] + upper[i, a0])
-            br[r, 1] = 0.5 * (lower[i, a1] + upper[i, a1])
-            br[r, 2] = 0.5 * (zlo + upper[i, a2])
-            br[r, 3] = 0.5 * max(upper[i, a0] - lower[i, a0],
-                                 max(upper[i, a1] - lower[i, a1], upper[i, a2] - zlo))
-        else:
-            br[r, 0] = lower[i, a0]
-            br[r, 1] = upper[i, a0]
-            br[r, 2] = zlo
-            br[r, 3] = upper[i, a2]
+        br[r, 0] = lower[i, a0]
+        br[r, 1] = upper[i, a0]
+        br[r, 2] = zlo
+        br[r, 3] = upper[i, a2]
     ok = np.ones(nchunks, np.bool_)
     for t in numba.prange(nchunks):
         a = min(t * chunk, n2)
@@ -352,29 +344,20 @@ def gather_parallel(iy, n, lower, upper, a0, a2, info, br, z0, inv_h, k, delta,
 
 
 @ijit
-def _overlap(br, q, xlo, xhi, zlo, zhi, spheres):
-    """OverlapTest of Algorithm 1.  Boxes: primary and third axes (the
-    secondary axis overlaps by construction of the sweep).  Spheres mode
-    (``br`` rows are centre x, y, z and half-width of cubes): a conservative
-    sphere test that keeps every pair of cubes whose inscribed spheres come
-    within a relative 1e-9 of touching; an exact test runs after."""
-    if spheres:
-        dx = br[q, 0] - xlo
-        dy = br[q, 1] - xhi
-        dz = br[q, 2] - zlo
-        rr = br[q, 3] + zhi
-        return dx * dx + dy * dy + dz * dz <= rr * rr * (1.0 + 1e-9)
+def _overlap(br, q, xlo, xhi, zlo, zhi):
+    """OverlapTest of Algorithm 1 on the primary and third axes (the secondary
+    axis overlaps by construction of the sweep)."""
     return (br[q, 0] <= xhi) & (xlo <= br[q, 1]) & (br[q, 2] <= zhi) & (zlo <= br[q, 3])
 
 
 @ijit
-def _test_word(word, w, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap, spheres):
+def _test_word(word, w, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap):
     """Overlap-test every rank set in leaf ``word`` number ``w``."""
     tested = 0
     while word != 0:
         q = (w << 6) + np.int64(cttz(word)) + base
         tested += 1
-        if _overlap(br, q, xlo, xhi, zlo, zhi, spheres):
+        if _overlap(br, q, xlo, xhi, zlo, zhi):
             j = rinv[q]
             if cnt < cap:
                 if j < me:
@@ -390,7 +373,7 @@ def _test_word(word, w, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap, s
 
 @ijit
 def _scan_summary(trees, k, b, leaf0, sum0, sw, s0, s1, w0, w1, first, last, base,
-                  xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap, spheres):
+                  xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap):
     """The leaves flagged by summary word ``sw``, clipped to words ``[w0, w1]``."""
     tested = 0
     sword = trees[(sum0 + sw) * k + b]
@@ -405,8 +388,7 @@ def _scan_summary(trees, k, b, leaf0, sum0, sw, s0, s1, w0, w1, first, last, bas
             word &= first
         if w == w1:
             word &= last
-        cnt, t = _test_word(word, w, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap,
-                            spheres)
+        cnt, t = _test_word(word, w, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap)
         tested += t
         sword &= sword - np.uint64(1)
     return cnt, tested
@@ -414,7 +396,7 @@ def _scan_summary(trees, k, b, leaf0, sum0, sw, s0, s1, w0, w1, first, last, bas
 
 @ijit
 def _scan_range_k(trees, off, k, b, lo, hi, base, xlo, xhi, zlo, zhi, br, rinv, me,
-                  out, cnt, cap, spheres=False):
+                  out, cnt, cap):
     """Range query ``S ∩ [lo, hi)`` on tree ``b`` of ``k`` interleaved trees,
     with the overlap test of every rank found (Algorithm 4, lines 13-15).
 
@@ -434,8 +416,7 @@ def _scan_range_k(trees, off, k, b, lo, hi, base, xlo, xhi, zlo, zhi, br, rinv, 
     last = ALL >> np.uint64(63 - ((hi - 1) & 63))
     if len(off) == 2:  # a single leaf word
         word = trees[b] & first & last
-        return _test_word(word, 0, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap,
-                          spheres)
+        return _test_word(word, 0, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt, cap)
     leaf0 = off[0]
     sum0 = off[1]
     s0 = w0 >> 6
@@ -444,7 +425,7 @@ def _scan_range_k(trees, off, k, b, lo, hi, base, xlo, xhi, zlo, zhi, br, rinv, 
         for sw in range(s0, s1 + 1):
             cnt, t = _scan_summary(trees, k, b, leaf0, sum0, sw, s0, s1, w0, w1, first,
                                    last, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt,
-                                   cap, spheres)
+                                   cap)
             tested += t
         return cnt, tested
     # Deeper trees: level-2 words say which summary words are non-empty, and
@@ -462,7 +443,7 @@ def _scan_range_k(trees, off, k, b, lo, hi, base, xlo, xhi, zlo, zhi, br, rinv, 
             sw = (tw << 6) + np.int64(cttz(tword))
             cnt, t = _scan_summary(trees, k, b, leaf0, sum0, sw, s0, s1, w0, w1, first,
                                    last, base, xlo, xhi, zlo, zhi, br, rinv, me, out, cnt,
-                                   cap, spheres)
+                                   cap)
             tested += t
             tword &= tword - np.uint64(1)
     return cnt, tested
@@ -470,7 +451,7 @@ def _scan_range_k(trees, off, k, b, lo, hi, base, xlo, xhi, zlo, zhi, br, rinv, 
 
 @pjit
 def pairing_parallel(events, reg_start, reg_count, n, br, rinv, trees, off, k, z0,
-                     inv_h, reach, out, counts, tested, todo, spheres):
+                     inv_h, reach, out, counts, tested, todo):
     """Algorithm 4: rank-partitioned parallel pairing, without duplicates.
 
     Partition ``p`` owns ranks ``[beta, eps)`` and keeps only those in its
@@ -522,18 +503,13 @@ def pairing_parallel(events, reg_start, reg_count, n, br, rinv, trees, off, k, z
                     xhi = br[r, 1]
                     zlo = br[r, 2]
                     zhi = br[r, 3]
-                    if spheres:  # third-axis range rebuilt from centre and half-width
-                        slack = 1e-9 * (abs(zlo) + zhi + reach)
-                        b0 = _bin(zlo - zhi - reach - slack, z0, inv_h, k)
-                        b1 = _bin(zlo + zhi + slack, z0, inv_h, k)
-                    else:
-                        b0 = _bin(zlo - reach, z0, inv_h, k)
-                        b1 = _bin(zhi, z0, inv_h, k)
+                    b0 = _bin(zlo - reach, z0, inv_h, k)
+                    b1 = _bin(zhi, z0, inv_h, k)
                     me = rinv[r]
                     for bb in range(b0, b1 + 1):  # lines 13-15, per shard
                         cnt, tt = _scan_range_k(tree, off, k, bb, lo, hi, beta, xlo,
                                                 xhi, zlo, zhi, br, rinv, me, buf, cnt,
-                                                cap, spheres)
+                                                cap)
                         tst += tt
                 if e & OWN:
                     st.ins_k(tree, off, k, b, r - beta)  # line 16
