@@ -1,4 +1,4 @@
-"""granularsap.Cell against MDAnalysis, ASE and LAMMPS; wrapping; hostile coordinates."""
+"""granularsap.Cell against MDAnalysis, ASE and LAMMPS; wrapping; far coordinates."""
 
 from __future__ import annotations
 

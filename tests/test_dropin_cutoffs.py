@@ -1,6 +1,6 @@
-"""Drop-ins against ASE and MDAnalysis on inputs their other tests do not cover:
-zero cutoffs with self_interaction, cutoffs that are not float32 numbers, cutoffs at
-exactly half the box."""
+"""Drop-ins against ASE and MDAnalysis at edge cutoffs: zero cutoffs with
+self_interaction, cutoffs that are not float32 numbers, cutoffs at exactly half
+the box."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""granularsap.dask on inputs its own tests did not try: Parquet paths and datasets.
+"""granularsap.dask pairs datasets: Parquet paths and datasets.
 
 Pairs datasets written with a trailing slash, replaced with ``overwrite=True``
 (never a moment where PATH holds an incomplete dataset, never deleting a

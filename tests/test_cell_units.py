@@ -1,5 +1,5 @@
-"""The core API on inputs it had not been checked on: cells in any units, slabs
-much wider than one length unit, subnormal coordinates."""
+"""The core API across scales: cells in any units, slabs much wider than one
+length unit, subnormal coordinates."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Trajectories written by LAMMPS during the test, read the way a user meets them.
 
-Each test is a defect found on LAMMPS output the rest of the suite had not seen:
+Each test is a case of LAMMPS output a reader must handle:
 a dump cut in the middle of its last line, ...  The answers are checked against
 a brute force over lattice images written here (no granularsap inside).
 """
@@ -39,7 +39,7 @@ def _brute(pos, cell, pbc, cutoff):
 def lammps_run(tmp_path_factory):
     """A small LJ liquid in a triclinic ``p s p`` cell: 4 frames, 300 atoms, unsorted rows."""
     lmp = lammps_or_skip()
-    d = tmp_path_factory.mktemp("unseen")
+    d = tmp_path_factory.mktemp("lammps_dumps")
     dump = d / "psp.dump"
     lmp.commands_string(f"""
         units lj
