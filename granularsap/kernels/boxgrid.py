@@ -73,7 +73,7 @@ import numba
 import numpy as np
 
 from .._numba import ijit, jit, pjit, serial_twin
-from .grid import lower_bound
+from .common import lower_bound
 
 #: exponent buckets of the size histogram: 0 holds zero-size boxes, ``b``
 #: holds sides with ``frexp`` exponent ``b - OFFSET`` (``2**(e-1) <= r < 2**e``),

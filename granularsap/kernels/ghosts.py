@@ -39,7 +39,7 @@ import numba
 import numpy as np
 
 from .._numba import ijit, pjit
-from .grid import OFF, ZERO, encode
+from .common import OFF, ZERO, encode
 
 #: largest |S_c| a code holds (a field is 10 bits, biased by 512; one is left
 #: so that a negated shift is still a code)

@@ -81,26 +81,12 @@ import numpy as np
 
 from .._numba import ijit, jit, pjit, serial_twin
 from .bits import ctpop, cttz
+from .common import OFF, ZERO, decode, encode, lower_bound  # noqa: F401 (re-exported)
 from .radixsort import scatter_offsets
 
 #: fractional coordinates at or beyond this magnitude cannot be wrapped
 #: meaningfully (the wrapped value keeps no significant bits)
 WRAP_LIMIT = 2.0 ** 52
-OFF = 512  # bias of one 10-bit shift field
-ZERO = (OFF << 20) | (OFF << 10) | OFF  # the code of a zero shift
-
-
-@ijit
-def encode(s0, s1, s2):
-    """Packed int32 code of the lattice shift ``(s0, s1, s2)``: three 10-bit fields
-    biased by ``OFF``."""
-    return ((s0 + OFF) << 20) | ((s1 + OFF) << 10) | (s2 + OFF)
-
-
-@ijit
-def decode(code):
-    """``(s0, s1, s2)`` of a packed shift code."""
-    return (code >> 20) - OFF, ((code >> 10) & 1023) - OFF, (code & 1023) - OFF
 
 
 @ijit
@@ -515,18 +501,6 @@ def gather_columns(perm, t, w, rad, label, tz, xs, ys, zs, rs, ls, use_label):
 
 
 # -------------------------------------------------------------------- build
-
-
-@jit
-def lower_bound(arr, lo, hi, v):
-    """First index in ``[lo, hi)`` of the sorted ``arr`` with ``arr[i] >= v``."""
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if arr[mid] < v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
 
 
 @ijit
