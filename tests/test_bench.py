@@ -461,14 +461,14 @@ Nlocal:         2000 ave        2000 max        2000 min
     def test_sections(self, tmp_path):
         path = tmp_path / "log.lammps"
         path.write_text(self.LOG)
-        assert peers._log_sections(path) == {"Pair": 0.0001, "Neigh": 0.15, "Comm": 0.01,
+        assert peers.log_sections(path) == {"Pair": 0.0001, "Neigh": 0.15, "Comm": 0.01,
                                              "Other": 0.04}
 
     def test_no_breakdown_is_a_clear_error(self, tmp_path):
         path = tmp_path / "log.lammps"
         path.write_text("run 0 post no\n")
         with pytest.raises(RuntimeError, match="LAMMPS wrote no timer breakdown"):
-            peers._log_sections(path)
+            peers.log_sections(path)
 
 
 class _Stateful(Fast):
