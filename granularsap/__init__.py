@@ -6,7 +6,7 @@ parallel bi-dimensional Sweep and Prune of Capannini & Larsson.
 """
 
 from ._version import __version__
-from .api import SweepAndPrune, box_overlaps
+from .boxes import SweepAndPrune, box_overlaps
 from .cell import Cell
 from .particles import clump_contacts, neighbor_pairs, sphere_contacts
 from .search import ContactSearch, NeighborSearch

@@ -37,7 +37,7 @@ import numpy as np
 
 from ._numba import num_threads
 from ._validate import as_coords, as_vector, check_n_threads
-from .api import SweepAndPrune
+from .boxes import SweepAndPrune
 from .cell import Cell
 from .kernels import ghosts as gk
 

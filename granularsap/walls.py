@@ -43,7 +43,7 @@ import numpy as np
 
 from ._numba import num_threads
 from ._validate import as_coords, as_scalar, as_vector, check_n_threads
-from .api import SweepAndPrune
+from .boxes import SweepAndPrune
 from .cell import Cell
 from .identity import ContactIdentity
 from .kernels import triangles as _tri

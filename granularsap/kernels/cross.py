@@ -1,6 +1,6 @@
 """Cross-set box overlaps: every box of set A against every box of set B.
 
-Two exact methods, chosen per box by the API (``api._cross_overlaps``):
+Two exact methods, chosen per box by the API (``boxes._cross_overlaps``):
 
 *Grid* (most boxes).  Overlaps can only occur inside the region ``R`` where
 the two sets' spans meet.  ``R`` is cut into a uniform grid of cells about
