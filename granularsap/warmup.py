@@ -387,7 +387,7 @@ def _warm_dropins():
             ns.search(x32[:10])
         try:
             from . import ase as gase
-            from .ase_neighborlist import NeighborList
+            from .ase.neighborlist import NeighborList
         except ImportError:  # pragma: no cover
             continue
         numbers = np.arange(len(pos)) % 3 + 1

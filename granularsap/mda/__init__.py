@@ -14,18 +14,18 @@ matrix is built the way ``triclinic_vectors`` builds it.  The search is always
 granularsap's Sweep and Prune, with the cutoff widened by 1e-5; when MDAnalysis is
 installed every candidate is then decided with the arithmetic of the method
 MDAnalysis would run (``method``, or MDAnalysis's own choice when it is None; see
-``granularsap._mda_arith``), so pairs at the cutoff agree with MDAnalysis too.
+``granularsap.mda.arith``), so pairs at the cutoff agree with MDAnalysis too.
 ``backend`` is validated like MDAnalysis's (``'serial'``, ``'OpenMP'``,
 ``'distopia'``) and otherwise ignored; an unknown ``method`` raises a
 ``KeyError`` as in MDAnalysis (also a ``ValueError``, with a message naming
 ``method``).  ``granularsap.mda.Contacts`` (the parallel ``AnalysisBase``) lives
-in ``granularsap.mda_analysis`` and is re-exported here on first access.
+in ``granularsap.mda.analysis`` and is re-exported here on first access.
 
 Cutoffs beyond half the smallest perpendicular cell width get one minimum
 image per pair, as in MDAnalysis: the engine returns every image within range
 (``periodic_images="all"``) and one row per pair is kept
-(``_mda_arith.nearest_images``); past two images per pair on average every pair
-is tested by a brute-force kernel instead (``_mda_arith.min_image_pairs``), in
+(``arith.nearest_images``); past two images per pair on average every pair
+is tested by a brute-force kernel instead (``arith.min_image_pairs``), in
 memory proportional to the output.  Where MDAnalysis's own ``nsgrid`` choice
 would raise "Cutoff ... too large for box", pairs at the cutoff are decided with
 the arithmetic of MDAnalysis's ``bruteforce`` method.  ``capped_distance`` of a
@@ -49,18 +49,19 @@ import threading
 
 import numpy as np
 
-from . import _mda_arith, periodic
-from ._validate import as_coords, as_scalar
-from .search import ContactSearch, NeighborSearch
+from .. import periodic
+from .._validate import as_coords, as_scalar
+from ..search import ContactSearch, NeighborSearch
+from . import arith
 
 __all__ = ["Contacts", "FastNS", "capped_distance", "self_capped_distance"]  # noqa: F822 (lazy)
 
 
 def __getattr__(name):
-    # Contacts (an MDAnalysis AnalysisBase, granularsap/mda_analysis.py) is imported
+    # Contacts (an MDAnalysis AnalysisBase, granularsap/mda/analysis.py) is imported
     # on first use so that the distance drop-ins work without MDAnalysis installed
     if name == "Contacts":
-        from .mda_analysis import Contacts
+        from .analysis import Contacts
 
         return Contacts
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
@@ -152,19 +153,19 @@ def _mda_box32(box):
 
 def _decide_like_mdanalysis(ref, conf, a, b, dist, box32, max_cutoff, method):
     """Re-decide candidates ``(ref[a], conf[b])`` with the arithmetic of the
-    MDAnalysis method that would run (granularsap._mda_arith).
+    MDAnalysis method that would run (granularsap.mda.arith).
 
     Where MDAnalysis's nsgrid would raise "Cutoff ... too large for box" (its
-    own limit, ``_mda_arith.nsgrid_refuses``; a cutoff of exactly half the box
+    own limit, ``arith.nsgrid_refuses``; a cutoff of exactly half the box
     runs), the drop-in answers with the arithmetic of MDAnalysis's bruteforce
     method instead.
     """
     ref32 = ref.astype(np.float32)
     conf32 = ref32 if conf is None else conf.astype(np.float32)
-    chosen = _mda_arith.choose_method(len(ref32), None if conf is None else len(conf32),
+    chosen = arith.choose_method(len(ref32), None if conf is None else len(conf32),
                                       max_cutoff, box32, ref32 if conf is None else
                                       np.concatenate([ref32, conf32]), method)
-    if chosen == "nsgrid" and box32 is not None and _mda_arith.nsgrid_refuses(max_cutoff,
+    if chosen == "nsgrid" and box32 is not None and arith.nsgrid_refuses(max_cutoff,
                                                                               box32):
         chosen = "bruteforce"
     if chosen == "pkdtree":
@@ -173,9 +174,9 @@ def _decide_like_mdanalysis(ref, conf, a, b, dist, box32, max_cutoff, method):
         # whose arithmetic is bruteforce's
         keep = dist <= max_cutoff
         a, b = a[keep], b[keep]
-        return a, b, _mda_arith.decide(ref32, conf32, a, b, box32, max_cutoff,
+        return a, b, arith.decide(ref32, conf32, a, b, box32, max_cutoff,
                                        "bruteforce")[0]
-    decided = _mda_arith.decide(ref32, conf32, a, b, box32, max_cutoff, chosen)
+    decided = arith.decide(ref32, conf32, a, b, box32, max_cutoff, chosen)
     d, keep = decided
     return a[keep], b[keep], d[keep]
 
@@ -210,7 +211,7 @@ def _search(kind, reach, images, n_threads):
 
 
 #: beyond this many images per pair in range on average (the volume of the range
-#: over the cell's), every pair is tested directly (``_mda_arith.min_image_pairs``):
+#: over the cell's), every pair is tested directly (``arith.min_image_pairs``):
 #: nearly all pairs are in range then, and the engine's list of every image would
 #: outgrow the answer
 _IMAGES_PER_PAIR = 2.0
@@ -223,10 +224,10 @@ def _many_images(cell, reach):
 
 def _brute(ref, conf, cell, reach, n_threads):
     """Pairs by brute-force minimum image, every pair tested (memory: the output)."""
-    from ._numba import num_threads
+    from .._numba import num_threads
 
     with num_threads(n_threads) as threads:
-        return _mda_arith.min_image_pairs(ref, conf, cell, reach * (1.0 + 1e-12), threads)
+        return arith.min_image_pairs(ref, conf, cell, reach * (1.0 + 1e-12), threads)
 
 
 def _let_go_if_large(search):
@@ -249,7 +250,7 @@ def _self_candidates(pos, cell, reach, n_threads, any_image=False):
         search = _search("neighbor", reach, "all", n_threads)
         pairs, dist = search.update(pos, cell)
         _let_go_if_large(search)
-        return _mda_arith.nearest_images(pairs, dist, len(pos), len(pos), drop_diagonal=True,
+        return arith.nearest_images(pairs, dist, len(pos), len(pos), drop_diagonal=True,
                                          any_image=any_image)
     search = _search("neighbor", reach, "minimum", n_threads)
     pairs, dist = search.update(pos, cell)
@@ -273,7 +274,7 @@ def _cross_candidates(ref, conf, cell, reach, n_threads, any_image=False):
     pairs, dist = search.update(pos, np.full(len(pos), 0.5 * reach), cell, clump_ids=labels)
     _let_go_if_large(search)
     if beyond:
-        return _mda_arith.nearest_images(pairs, dist, n, m, shift=n, any_image=any_image)
+        return arith.nearest_images(pairs, dist, n, m, shift=n, any_image=any_image)
     return pairs[:, 0], pairs[:, 1] - n, dist
 
 
@@ -340,7 +341,7 @@ def self_capped_distance(reference, max_cutoff, min_cutoff=None, box=None, metho
     >>> [round(x, 6) for x in sorted(d.tolist())]  # MDAnalysis's float32 rounding
     [1.0, 1.0, 2.0]
     """
-    from ._validate import check_n_threads
+    from .._validate import check_n_threads
 
     pos = _coords(reference, "reference")
     max_cutoff, min_cutoff = _cutoffs(max_cutoff, min_cutoff)
@@ -349,7 +350,7 @@ def self_capped_distance(reference, max_cutoff, min_cutoff=None, box=None, metho
     _check_backend(backend)
     n_threads = check_n_threads(n_threads)
     emulate = _mda_box32(box) if len(pos) > 1 else None
-    reach = max_cutoff * (1.0 + _mda_arith.WIDEN) if emulate is not None else max_cutoff
+    reach = max_cutoff * (1.0 + arith.WIDEN) if emulate is not None else max_cutoff
     a, b, dist = _self_candidates(pos, cell, reach, n_threads, any_image=emulate is not None)
     if emulate is not None:
         a, b, dist = _decide_like_mdanalysis(pos, None, a, b, dist, emulate[0], max_cutoff,
@@ -400,7 +401,7 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
     >>> sorted(pairs.tolist())
     [[0, 0], [0, 1]]
     """
-    from ._validate import check_n_threads
+    from .._validate import check_n_threads
 
     ref = _coords(reference, "reference")
     conf = _coords(configuration, "configuration")
@@ -415,7 +416,7 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
         return _finish(np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0),
                        min_cutoff, return_distances)
     emulate = _mda_box32(box)
-    reach = max_cutoff * (1.0 + _mda_arith.WIDEN) if emulate is not None else max_cutoff
+    reach = max_cutoff * (1.0 + arith.WIDEN) if emulate is not None else max_cutoff
     # the same coordinates twice (an RDF of a group with itself): the pairs i < j
     # of one set, decided once and mirrored (MDAnalysis's arithmetic gives (j, i)
     # the distance of (i, j) exactly: float32 differences and the image search
@@ -439,4 +440,4 @@ def capped_distance(reference, configuration, max_cutoff, min_cutoff=None, box=N
     return _finish(a, b, dist, min_cutoff, return_distances)
 
 
-from .mda_fastns import FastNS  # noqa: E402  (stateful drop-in; no MDAnalysis import)
+from .fastns import FastNS  # noqa: E402  (stateful drop-in; no MDAnalysis import)

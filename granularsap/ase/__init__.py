@@ -40,11 +40,11 @@ import math
 import numba
 import numpy as np
 
-from . import periodic
-from ._numba import jit, num_threads, pjit
-from ._validate import as_coords, check_n_threads
-from .search import ContactSearch
-from .search import as_radii as _as_radii
+from .. import periodic
+from .._numba import jit, num_threads, pjit
+from .._validate import as_coords, check_n_threads
+from ..search import ContactSearch
+from ..search import as_radii as _as_radii
 
 __all__ = ["NeighborList", "neighbor_list", "primitive_neighbor_list"]
 
@@ -379,4 +379,4 @@ def neighbor_list(quantities, a, cutoff, self_interaction=False, max_nbins=1e6, 
                                    max_nbins=max_nbins, n_threads=n_threads)
 
 
-from .ase_neighborlist import NeighborList  # noqa: E402  (stateful drop-in)
+from .neighborlist import NeighborList  # noqa: E402  (stateful drop-in)
