@@ -116,6 +116,33 @@ def _coordination(pairs, n):
 
 
 # -------------------------------------------------------- threaded scheduler
+class TestCellKeyword:
+    """``box=`` as in the core; ``cell=`` is its older name and still answers."""
+
+    @pytest.mark.parametrize("kind", ["orthorhombic", "triclinic", "mixed"])
+    def test_box_and_cell_give_the_single_machine_pairs(self, kind):
+        x, reach, cell, pbc = _frame(kind)
+        pairs, d = _single(x, reach, cell, pbc)
+        for kw in ({"box": cell}, {"cell": cell}):
+            df = gdask.neighbor_pairs(x, reach, pbc=pbc, domains=2, **kw)
+            _assert_same_pairs(df.compute(scheduler="threads"), pairs, d)
+            ds = gdask.DomainSearch(x, cutoff=reach, pbc=pbc, domains=2, **kw)
+            assert int(ds.count_pairs().compute()) == len(pairs)
+
+    def test_both_names_at_once_are_refused(self):
+        x, reach, cell, _ = _frame("orthorhombic")
+        with pytest.raises(TypeError, match=r"give the cell as box= \(cell= is its older "
+                                             r"name\), not both"):
+            gdask.DomainSearch(x, cutoff=reach, box=cell, cell=cell)
+
+    def test_a_bad_cell_is_named_as_given(self):
+        x = np.zeros((3, 3))
+        with pytest.raises(ValueError, match=r"^box lengths must be positive"):
+            gdask.count_pairs(x, 1.0, box=[8, 8, -8, 90, 90, 90])
+        with pytest.raises(ValueError, match=r"^cell lengths must be positive"):
+            gdask.count_pairs(x, 1.0, cell=[8, 8, -8, 90, 90, 90])
+
+
 class TestThreaded:
     """No cluster given: Dask's threaded scheduler runs the domains."""
 

@@ -56,8 +56,8 @@ __all__ = [
 ]
 
 
-def neighbor_pairs(positions, cutoff, *, cell=None, pbc=None, domains=None, client=None,
-                   n_threads=None):
+def neighbor_pairs(positions, cutoff, *, box=None, pbc=None, domains=None, client=None,
+                   n_threads=None, cell=None):
     """Pairs with ``d <= cutoff`` of one frame as a lazy Dask DataFrame.
 
     The distributed twin of :func:`granularsap.neighbor_pairs`: columns ``i``,
@@ -68,64 +68,65 @@ def neighbor_pairs(positions, cutoff, *, cell=None, pbc=None, domains=None, clie
     --------
     >>> import numpy as np, granularsap, granularsap.dask
     >>> x = np.random.default_rng(1).uniform(0, 8, (500, 3))
-    >>> df = granularsap.dask.neighbor_pairs(x, 1.2, cell=[8, 8, 8, 90, 90, 90], domains=3)
+    >>> df = granularsap.dask.neighbor_pairs(x, 1.2, box=[8, 8, 8, 90, 90, 90], domains=3)
     >>> pairs, d = granularsap.neighbor_pairs(x, 1.2, box=[8, 8, 8, 90, 90, 90])
     >>> len(df.compute()) == len(pairs)
     True
     """
-    return DomainSearch(positions, cutoff=cutoff, cell=cell, pbc=pbc, domains=domains,
+    return DomainSearch(positions, cutoff=cutoff, box=box, cell=cell, pbc=pbc, domains=domains,
                         client=client, n_threads=n_threads).pairs()
 
 
-def sphere_contacts(positions, radii, *, skin=0.0, cell=None, pbc=None, clump_ids=None,
+def sphere_contacts(positions, radii, *, skin=0.0, box=None, pbc=None, clump_ids=None, cell=None,
                     domains=None, client=None, n_threads=None):
     """Sphere contacts ``d <= r_i + r_j + skin`` of one frame as a lazy Dask DataFrame.
 
     The distributed twin of :func:`granularsap.sphere_contacts` (with
     ``return_distances=True``); columns ``i``, ``j``, ``distance``.
     """
-    return DomainSearch(positions, radii=radii, skin=skin, clump_ids=clump_ids, cell=cell,
+    return DomainSearch(positions, radii=radii, skin=skin, clump_ids=clump_ids, box=box, cell=cell,
                         pbc=pbc, domains=domains, client=client, n_threads=n_threads).pairs()
 
 
-def coordination_numbers(positions, cutoff=None, *, radii=None, skin=0.0, cell=None, pbc=None,
-                         domains=None, client=None, n_threads=None):
+def coordination_numbers(positions, cutoff=None, *, radii=None, skin=0.0, box=None, pbc=None,
+                         domains=None, client=None, n_threads=None, cell=None):
     """Pairs per particle (neighbours within ``cutoff``, or contacts with ``radii``).
 
     Returns an ``(n,)`` int64 dask.array aligned with ``positions``; no pair
     list is gathered anywhere.
     """
-    return DomainSearch(positions, cutoff=cutoff, radii=radii, skin=skin, cell=cell, pbc=pbc,
-                        domains=domains, client=client,
+    return DomainSearch(positions, cutoff=cutoff, radii=radii, skin=skin, box=box, pbc=pbc,
+                        cell=cell, domains=domains, client=client,
                         n_threads=n_threads).coordination_numbers()
 
 
-def count_pairs(positions, cutoff=None, *, radii=None, skin=0.0, cell=None, pbc=None,
-                domains=None, client=None, n_threads=None):
+def count_pairs(positions, cutoff=None, *, radii=None, skin=0.0, box=None, pbc=None,
+                domains=None, client=None, n_threads=None, cell=None):
     """Number of pairs (or contacts) of one frame, a lazy 0-d dask.array."""
-    return DomainSearch(positions, cutoff=cutoff, radii=radii, skin=skin, cell=cell, pbc=pbc,
-                        domains=domains, client=client, n_threads=n_threads).count_pairs()
+    return DomainSearch(positions, cutoff=cutoff, radii=radii, skin=skin, box=box, pbc=pbc,
+                        cell=cell, domains=domains, client=client,
+                        n_threads=n_threads).count_pairs()
 
 
-def distance_histogram(positions, cutoff=None, *, bins=100, radii=None, skin=0.0, cell=None,
-                       pbc=None, domains=None, client=None, n_threads=None):
+def distance_histogram(positions, cutoff=None, *, bins=100, radii=None, skin=0.0, box=None,
+                       pbc=None, domains=None, client=None, n_threads=None, cell=None):
     """Pair-distance histogram ``(counts dask.array, edges)``; see
     :meth:`DomainSearch.distance_histogram`."""
-    return DomainSearch(positions, cutoff=cutoff, radii=radii, skin=skin, cell=cell, pbc=pbc,
-                        domains=domains, client=client,
+    return DomainSearch(positions, cutoff=cutoff, radii=radii, skin=skin, box=box, pbc=pbc,
+                        cell=cell, domains=domains, client=client,
                         n_threads=n_threads).distance_histogram(bins)
 
 
-def radial_distribution(positions, cutoff, *, bins=100, cell, pbc=None, domains=None,
+def radial_distribution(positions, cutoff, *, bins=100, box=None, pbc=None, domains=None, cell=None,
                         client=None, n_threads=None):
     """g(r) up to ``cutoff`` of a periodic frame ``(g dask.array, edges)``; see
     :meth:`DomainSearch.radial_distribution`."""
-    return DomainSearch(positions, cutoff=cutoff, cell=cell, pbc=pbc, domains=domains,
+    return DomainSearch(positions, cutoff=cutoff, box=box, cell=cell, pbc=pbc, domains=domains,
                         client=client, n_threads=n_threads).radial_distribution(bins)
 
 
-def write_pairs(path, positions, cutoff=None, *, radii=None, skin=0.0, cell=None, pbc=None,
-                domains=None, client=None, n_threads=None, overwrite=False):
+def write_pairs(path, positions, cutoff=None, *, radii=None, skin=0.0, box=None, pbc=None,
+                domains=None, client=None, n_threads=None, overwrite=False, cell=None):
     """Write the pairs of a frame to a Parquet dataset, from the workers.
 
     Each domain's task writes its own ``PATH.partial/domain-NNNNN.parquet``
@@ -148,6 +149,6 @@ def write_pairs(path, positions, cutoff=None, *, radii=None, skin=0.0, cell=None
     dict
         The marker's content (``n_pairs``, ``domains``, ...).
     """
-    search = DomainSearch(positions, cutoff=cutoff, radii=radii, skin=skin, cell=cell,
+    search = DomainSearch(positions, cutoff=cutoff, radii=radii, skin=skin, box=box, cell=cell,
                           pbc=pbc, domains=domains, client=client, n_threads=n_threads)
     return search.write_pairs(path, overwrite=overwrite)

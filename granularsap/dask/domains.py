@@ -90,8 +90,11 @@ class DomainSearch:
         Contact distance added to ``r_i + r_j`` (with ``radii``).
     clump_ids : (n,) array_like of int, optional
         Rigid-clump labels (with ``radii``): no pairs inside a clump.
-    cell : None, (6,) or (3, 3) array_like of float, Cell or ase.Atoms, optional
-        The periodic cell, in any form a ``box=`` takes; None for open boundaries.
+    box : None, (6,) or (3, 3) array_like of float, Cell or ase.Atoms, optional
+        The periodic cell, in any form the core's ``box=`` takes; None for open
+        boundaries.
+    cell : optional
+        The older name of ``box`` (kept for one release); give one of the two.
     pbc : bool or (3,) bools, optional
         Periodic axes of ``cell`` (default: all, or the Cell's own).
     domains : int or (3,) ints, optional
@@ -123,7 +126,7 @@ class DomainSearch:
     >>> import numpy as np
     >>> from granularsap.dask import DomainSearch
     >>> x = np.random.default_rng(0).uniform(0, 10, (2000, 3))
-    >>> ds = DomainSearch(x, cutoff=1.5, cell=[10, 10, 10, 90, 90, 90], domains=4)
+    >>> ds = DomainSearch(x, cutoff=1.5, box=[10, 10, 10, 90, 90, 90], domains=4)
     >>> ds.grid, ds.pairs().npartitions
     ((1, 1, 4), 4)
     >>> int(ds.count_pairs().compute()) == len(ds.pairs().compute())
@@ -131,7 +134,8 @@ class DomainSearch:
     """
 
     def __init__(self, positions, *, cutoff=None, radii=None, skin=0.0, clump_ids=None,
-                 cell=None, pbc=None, domains=None, client=None, n_threads=None,
+                 box=None, cell=None, pbc=None, domains=None, client=None,
+                 n_threads=None,
                  particles_per_domain=None):
         if (cutoff is None) == (radii is None):
             raise ValueError("give exactly one of cutoff (neighbour pairs) and radii "
@@ -146,7 +150,12 @@ class DomainSearch:
         if isinstance(per, bool) or not isinstance(per, (int, np.integer)) or per < 1:
             raise ValueError(f"particles_per_domain must be a positive int, got {per!r}")
         self.client, self.n_workers = resolve_client(client)
-        box = Cell.coerce(cell, pbc=pbc, name="cell")
+        name = "box"
+        if cell is not None:
+            if box is not None:
+                raise TypeError("give the cell as box= (cell= is its older name), not both")
+            box, name = cell, "cell"
+        box = Cell.coerce(box, pbc=pbc, name=name)
         frac_cell = box if box is not None and box.any_periodic else None
         pbc_u = tuple(bool(p) for p in frac_cell.pbc) if frac_cell is not None else \
             (False,) * 3

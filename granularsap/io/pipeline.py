@@ -301,12 +301,12 @@ def domain_frame_contacts(frame: Frame, params: ContactParams, client):
     common = dict(client=client, n_threads=params.n_threads)
     if params.cutoff is not None:
         search = gdask.DomainSearch(frame.positions, cutoff=params.cutoff,
-                                    cell=engine_cell(frame), **common)
+                                    box=engine_cell(frame), **common)
     else:
         radii = frame.radius if frame.radius is not None else _radii(frame, params)
         labels = frame.molecule if params.clumps else None
         search = gdask.DomainSearch(frame.positions, radii=radii, skin=params.skin,
-                                    clump_ids=labels, cell=engine_cell(frame), **common)
+                                    clump_ids=labels, box=engine_cell(frame), **common)
     df = client.compute(search.pairs()).result()
     pairs = np.stack([df["i"].to_numpy(), df["j"].to_numpy()], axis=1).astype(np.int64)
     pairs = pairs.reshape(-1, 2)
