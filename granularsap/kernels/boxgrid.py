@@ -73,7 +73,7 @@ import numba
 import numpy as np
 
 from .._numba import ijit, jit, pjit, serial_twin
-from .common import lower_bound
+from .common import lower_bound, stable_argsort
 
 #: exponent buckets of the size histogram: 0 holds zero-size boxes, ``b``
 #: holds sides with ``frexp`` exponent ``b - OFFSET`` (``2**(e-1) <= r < 2**e``),
@@ -279,7 +279,7 @@ def sort_columns(chunk_cols, start, perm, lower, upper, c0, c1, z, fresh, xl, xu
                 vals = np.empty(m, np.float64)
                 for p in range(m):
                     vals[p] = lower[seg[p], z] + 0.0  # -0.0 sorts as +0.0
-                order = np.argsort(vals, kind="mergesort")
+                order = stable_argsort(vals)
                 for p in range(m):
                     i = seg[order[p]]
                     perm[lo + p] = i

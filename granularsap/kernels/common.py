@@ -1,7 +1,9 @@
-"""Small kernels both engines use: the packed lattice shift of a pair and the
-bounds search in a sorted run."""
+"""Small kernels both engines use: the packed lattice shift of a pair, the bounds
+search in a sorted run, a stable index sort."""
 
 from __future__ import annotations
+
+import numpy as np
 
 from .._numba import ijit, jit
 
@@ -32,3 +34,38 @@ def lower_bound(arr, lo, hi, v):
         else:
             hi = mid
     return lo
+
+
+@jit
+def stable_argsort(vals):
+    """Indices that sort the finite ``vals`` ascending, equal values in index order
+    (``np.argsort(vals, kind="stable")`` for finite values): a bottom-up merge
+    sort, which compiles in a fraction of the time numba's own takes."""
+    m = vals.shape[0]
+    order = np.arange(m)
+    tmp = np.empty(m, np.int64)
+    width = 1
+    while width < m:
+        for lo in range(0, m, 2 * width):
+            mid = min(lo + width, m)
+            hi = min(lo + 2 * width, m)
+            a, b, k = lo, mid, lo
+            while a < mid and b < hi:
+                if vals[order[b]] < vals[order[a]]:  # strictly less: ties keep the left
+                    tmp[k] = order[b]
+                    b += 1
+                else:
+                    tmp[k] = order[a]
+                    a += 1
+                k += 1
+            while a < mid:
+                tmp[k] = order[a]
+                a += 1
+                k += 1
+            while b < hi:
+                tmp[k] = order[b]
+                b += 1
+                k += 1
+        order, tmp = tmp, order
+        width *= 2
+    return order

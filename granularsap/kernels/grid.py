@@ -81,7 +81,14 @@ import numpy as np
 
 from .._numba import ijit, jit, pjit, serial_twin
 from .bits import ctpop, cttz
-from .common import OFF, ZERO, decode, encode, lower_bound  # noqa: F401 (re-exported)
+from .common import (  # noqa: F401 (re-exported)
+    OFF,
+    ZERO,
+    decode,
+    encode,
+    lower_bound,
+    stable_argsort,
+)
 from .radixsort import scatter_offsets
 
 #: fractional coordinates at or beyond this magnitude cannot be wrapped
@@ -465,7 +472,7 @@ def sort_columns(start, ncol, perm, t, axis, fresh):
             vals = np.empty(m, np.float64)
             for p in range(m):
                 vals[p] = t[seg[p], axis]
-            order = np.argsort(vals, kind="mergesort")
+            order = stable_argsort(vals)
             for p in range(m):
                 perm[lo + p] = seg[order[p]]
 
