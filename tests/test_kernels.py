@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from granularsap.kernels import radixsort as rs
@@ -122,3 +122,13 @@ def test_idxsort_runs_that_agree_on_leading_bits():
     lo[1, 0] = -3.0
     hi = lo + rng.integers(0, 2, (n, 3)) * 1e-15
     _sort_both_ways(lo, hi)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.sampled_from([-1.5, -0.0, 0.0, 0.25, 1.0, 3.0, 1e300]), max_size=70)
+       | st.lists(st.floats(-1e6, 1e6, allow_nan=False), max_size=70))
+def test_stable_argsort_equals_numpy_stable(vals):
+    from granularsap.kernels.common import stable_argsort
+
+    v = np.array(vals, dtype=np.float64)
+    assert stable_argsort(v).tolist() == np.argsort(v, kind="stable").tolist()
