@@ -1059,9 +1059,11 @@ class _Search:
         if sc is None or len(sc[0]) < n + 2:
             sc = self._small_scratch = (np.empty(n + 2, np.int64), np.empty(n + 2, np.int64),
                                         np.empty(n, np.uint8), np.empty((12, 2), np.int64),
-                                        np.empty(6 * n + 64, np.int32))
+                                        np.empty(6 * n + 64, np.int32), np.empty(n),
+                                        np.empty(n))
         start, cursor, big, stencil = sc[:4]
-        zidx = sc[4] if len(sc) > 4 else np.empty(0, np.int32)
+        zidx, ts0, ts1 = sc[4:] if len(sc) > 4 else (np.empty(0, np.int32), _NO_RADII,
+                                                      _NO_RADII)
         if getattr(self, "_words", None) is None or len(self._words) < n + 64:
             self._records(4 * n + 1024)
         q = self._computed
@@ -1075,7 +1077,7 @@ class _Search:
                 r_small or 0.0, fresh, prev, self._t, self._k, self._w, self._col, perm, start,
                 cursor, self._tz, self._xs, self._ys, self._zs, self._rs, self._ls, big,
                 stencil, self._words, self._rec_p, self._rec_q, self._rec_s, self._ks, zidx,
-                *want, self._out_p, self._out_d, self._out_v, self._out_s)
+                ts0, ts1, *want, self._out_p, self._out_d, self._out_v, self._out_s)
             if bad == -2:  # a plan of more than one column layer: the general path
                 return None
             self._raise_bad(bad)

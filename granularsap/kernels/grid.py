@@ -1159,7 +1159,8 @@ def _zbucket(v, zlo, inv_bz, top):
 def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell, diag,
                  stencil, rmax, reach, inv_w2, skin, strict, uniform, x2, in2, out2, dtol,
                  exact, xg, perm, kp, words, rec_p, rec_q, rec_s, wcap, levels, big, r_small,
-                 stencil_big, zidx, nz, zlo, inv_bz):
+                 stencil_big, zidx, nz, zlo, inv_bz, ts0, ts1, lo0, lo1, f0, f1, inv_w0,
+                 inv_w1, guard):
     """``_sweep_chunk`` over every column of a small frame (no self-images, no
     Verlet list) with a window per particle.
 
@@ -1172,7 +1173,10 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
     pointer walk: ``zidx[col * (nz + 1) + b]`` is the first particle of
     column ``col`` in sweep bucket ``b`` or later (``_zbucket``), so the
     candidates of a shift ``k`` are those of the buckets from ``lo - k`` to
-    ``hi - k``, a superset of the window (the exact test decides)."""
+    ``hi - k``, a superset of the window (the exact test decides).  A stencil
+    column farther from ``p`` across axis 0 or 1 than that range (``ts0``,
+    ``ts1`` the fractional coordinates in column order, columns ``f0``, ``f1``
+    wide from ``lo0``, ``lo1``) holds no partner and is not visited."""
     cnt = 0
     tested = 0
     w = 0
@@ -1195,13 +1199,36 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
         n_st = st.shape[0]
         r_win = rmax if (second or not levels) else r_small
         rw = r_win + reach
+        # the range across axes 0 and 1, a guard more for the rounding of the
+        # column edges
+        rg = rw + guard
         for o_st in range(0 if second else -1, n_st):
             own = o_st < 0  # the column itself: forward in sorted order
             s0 = 0
             s1 = 0
+            # the gap of p to the stencil column across axis c: g_c (e_c - t_c),
+            # nothing along an axis of no offset
+            g0 = 0.0
+            g1 = 0.0
+            e0 = 0.0
+            e1 = 0.0
             if own:
                 col2 = col
             else:
+                o0 = st[o_st, 0]
+                o1 = st[o_st, 1]
+                if o0 > 0:
+                    g0 = 1.0
+                    e0 = lo0 + (b0 + o0) * f0
+                elif o0 < 0:
+                    g0 = -1.0
+                    e0 = lo0 + (b0 + o0 + 1) * f0
+                if o1 > 0:
+                    g1 = 1.0
+                    e1 = lo1 + (b1 + o1) * f1
+                elif o1 < 0:
+                    g1 = -1.0
+                    e1 = lo1 + (b1 + o1 + 1) * f1
                 c0 = b0 + st[o_st, 0]
                 c1 = b1 + st[o_st, 1]
                 if pbc[0]:
@@ -1229,8 +1256,13 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
             for p in range(lo_c, hi_c):
                 if levels and (big[p] != second):
                     continue
-                tp = tz[p]
                 rp = rs[p]
+                if not own:
+                    reach_p = rp + rg
+                    if ((g0 * (e0 - ts0[p]) > reach_p * inv_w0)
+                            | (g1 * (e1 - ts1[p]) > reach_p * inv_w1)):
+                        continue
+                tp = tz[p]
                 dp = (rp + rw) * inv_w2
                 lo_v = tp - dp
                 hi_v = tp + dp
@@ -1360,7 +1392,7 @@ def _small_zindex(ncol, start, tz, zidx, nz, zlo, inv_bz):
 def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, strict,
                 uniform, x2, guard_rel, r_small, fresh, prev, t, k, w, col, perm, start,
                 cursor, tz, xs, ys, zs, rs, ls, big, stencil, words, rec_p, rec_q, rec_s, kp,
-                zidx):
+                zidx, ts0, ts1):
     """Wrap, plan, sort, gather and sweep one frame (serial, minimum image, no
     Verlet list): the steps of ``search._build`` and ``direct_count`` on one
     chunk.  ``r_small > 0`` asks for two column levels split at that radius.
@@ -1514,8 +1546,12 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
             order = np.argsort(vals, kind="mergesort")
             for p in range(m):
                 perm[lo_c + p] = seg[order[p]]
+    keep01 = ts0.shape[0] >= n and ts1.shape[0] >= n
     for p in range(n):
         i = perm[p]
+        if keep01:
+            ts0[p] = t[i, 0]
+            ts1[p] = t[i, 1]
         tz[p] = t[i, 2]
         xs[p] = w[i, 0]
         ys[p] = w[i, 1]
@@ -1551,7 +1587,7 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
     if not math.isfinite(inv_bz):
         nz = 1
         inv_bz = 0.0
-    use_z = ncol * (nz + 1) <= zidx.shape[0]
+    use_z = keep01 and ncol * (nz + 1) <= zidx.shape[0]
     if use_z:
         _small_zindex(ncol, chunk_start, tz, zidx, nz, zlo, inv_bz)
         # crowded buckets (positions clustered along an open sweep axis) would
@@ -1567,7 +1603,8 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
             ncol, chunk_start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell, diag,
             stencil[:n_st], rmax, reach, inv_w2, skin, strict, uniform, x2, lo2, hi2, dtol,
             exact, x, perm, kp, words, rec_p, rec_q, rec_s, words.shape[0], levels, big,
-            r_small, stencil_big, zidx, nz, zlo, inv_bz)
+            r_small, stencil_big, zidx, nz, zlo, inv_bz, ts0, ts1, lo0, lo1, f0, f1,
+            1.0 / widths[0], 1.0 / widths[1], guard)
     else:
         cnt, tested, need = _sweep_chunk(
             0, ncol, chunk_start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell,
@@ -1591,14 +1628,14 @@ def small_fill(need, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls, use_label, 
 def small_frame(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, strict,
                 uniform, x2, guard_rel, r_small, fresh, prev, t, k, w, col, perm, start,
                 cursor, tz, xs, ys, zs, rs, ls, big, stencil, words, rec_p, rec_q, rec_s, kp,
-                zidx, want_d, want_vec, want_shift, out_p, out_d, out_v, out_s):
+                zidx, ts0, ts1, want_d, want_vec, want_shift, out_p, out_d, out_v, out_s):
     """``small_count`` then, when its records and its pairs fit (``words``, the
     outputs), ``small_fill``: a small frame in one call.  Returns
     ``small_count``'s answer and whether the outputs were written."""
     bad, total, tested, need, nb0, nb1, exact = small_count(
         x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, strict, uniform, x2,
         guard_rel, r_small, fresh, prev, t, k, w, col, perm, start, cursor, tz, xs, ys, zs,
-        rs, ls, big, stencil, words, rec_p, rec_q, rec_s, kp, zidx)
+        rs, ls, big, stencil, words, rec_p, rec_q, rec_s, kp, zidx, ts0, ts1)
     done = (bad == -1 and need <= words.shape[0] and total <= out_p.shape[0]
             and (total <= out_d.shape[0] or not want_d)
             and (total <= out_v.shape[0] or not want_vec)
