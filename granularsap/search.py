@@ -349,10 +349,11 @@ class _CellState:
     while the same cell comes back)."""
 
     __slots__ = ("cell", "pbc", "cell_k", "diag", "hinv", "widths", "key", "narrowest",
-                 "magnitude", "fine", "min_periodic_width", "det")
+                 "magnitude", "fine", "min_periodic_width", "det", "all_periodic")
 
     def __init__(self, cell, pbc):
         self.cell, self.pbc = cell, pbc
+        self.all_periodic = bool(pbc.all())
         cell_k = cell if cell is not None else np.eye(3)
         self.cell_k = cell_k
         self.diag = not np.any(cell_k - np.diag(np.diag(cell_k)))
@@ -592,7 +593,7 @@ class _Search:
         self._scan_now = scan if (scan is not None and scale == 1.0 and n) else None
         # coordinates far beyond the range along an open axis: the general path,
         # which guards open axes by the range (``_build``), not by the coordinates
-        self._far = bool(n and not cs.pbc.all() and _GUARD * big * scale
+        self._far = bool(n and not cs.all_periodic and _GUARD * big * scale
                          > _far_scale(reach_max + self._margin, cs.min_periodic_width) * _FAR)
         if self._takes_small(n, minimum):  # serial kernels only: no thread setting
             self._kern = grid.serial
@@ -1118,9 +1119,9 @@ class _Search:
         the extent along open axes are the same."""
         if n < 1000:
             return None
-        open_axes = ~cs.pbc
         span = 1.0
-        if open_axes.any():
+        if not cs.all_periodic:
+            open_axes = ~cs.pbc
             if cs.diag:
                 frac = positions[:, open_axes] / np.diag(cs.cell_k)[open_axes]
             else:  # (a sum of products, not a BLAS product: no BLAS threads)
