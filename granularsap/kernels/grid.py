@@ -1379,13 +1379,17 @@ def _small_zindex(ncol, start, tz, zidx, nz, zlo, inv_bz):
     stride = nz + 1
     for c in range(ncol):
         row = c * stride
-        q = start[c]
         hi = start[c + 1]
-        for b in range(nz):
-            while q < hi and _zbucket(tz[q], zlo, inv_bz, ztop) < b:
-                q += 1
-            zidx[row + b] = q
-        zidx[row + nz] = hi
+        b = 0
+        for q in range(start[c], hi):
+            # (sorted along the sweep axis: the buckets up to q's start at q)
+            bq = _zbucket(tz[q], zlo, inv_bz, ztop)
+            while b <= bq:
+                zidx[row + b] = q
+                b += 1
+        while b <= nz:
+            zidx[row + b] = hi
+            b += 1
 
 
 @jit
