@@ -63,6 +63,7 @@ _MAX_CHUNKS = 1024
 _MAX_BINS = 1 << 16
 _NO_BIG = np.zeros(0, np.uint8)
 _NO_ENTRIES = np.zeros(0, np.int64)
+_NO_RADII = np.zeros(0)
 #: below this many particles one thread runs (a parallel region costs more)
 _PARALLEL_MIN = 20000
 #: frames of up to this many particles (no Verlet margin, minimum image) are
@@ -95,6 +96,38 @@ def _magnitudes(x):
         if a > 0.0 and a < lo:
             lo = a
     return hi, lo
+
+
+@jit
+def _scan_frame(x, rad, kept):
+    """One pass over a frame's positions and radii: (first row of ``x`` with a NaN
+    or an inf, or -1; ``_magnitudes(x)``; whether every radius is finite and
+    non-negative; the smallest and the largest radius; whether ``rad`` equals
+    ``kept`` value for value)."""
+    n = x.shape[0]
+    bad = -1
+    hi = 0.0
+    lo = np.inf
+    for i in range(n):
+        for c in range(x.shape[1]):
+            a = abs(x[i, c])
+            if not a < np.inf and bad < 0:
+                bad = i
+            hi = a if a > hi else hi
+            if a > 0.0 and a < lo:
+                lo = a
+    ok = True
+    rmin = np.inf
+    rmax = -np.inf
+    same = kept.shape[0] == n
+    for i in range(n):
+        r = rad[i]
+        ok = ok & (r >= 0.0) & (r < np.inf)
+        rmin = r if r < rmin else rmin
+        rmax = r if r > rmax else rmax
+        if same:
+            same = r == kept[i]
+    return bad, hi, lo, ok, rmin, rmax, same
 
 
 def _far_scale(rng, width):
@@ -316,10 +349,11 @@ class _CellState:
     while the same cell comes back)."""
 
     __slots__ = ("cell", "pbc", "cell_k", "diag", "hinv", "widths", "key", "narrowest",
-                 "magnitude", "fine", "min_periodic_width", "det")
+                 "magnitude", "fine", "min_periodic_width", "det", "all_periodic")
 
     def __init__(self, cell, pbc):
         self.cell, self.pbc = cell, pbc
+        self.all_periodic = bool(pbc.all())
         cell_k = cell if cell is not None else np.eye(3)
         self.cell_k = cell_k
         self.diag = not np.any(cell_k - np.diag(np.diag(cell_k)))
@@ -348,6 +382,15 @@ class _Search:
     _small_scratch = None
     #: the band's coordinate extent of a frame far beyond the range (``_build``)
     _far_ext = None
+    #: ``_scan_frame`` of the positions and radii of the call under way (``update``),
+    #: or None; and what the frame kept from it (``_frame``)
+    _scan = None
+    _scan_now = None
+    #: the radii the last build kept (``_rad``) and a count of their changes
+    _rad = None
+    _rad_version = 0
+    _square_memo = (None, None)
+    _small_reason = (-1, None)
 
     def __init__(self, *, rebuild_margin, quantities, layout, n_threads, periodic_images,
                  include_cutoff, path, identity=False):
@@ -402,6 +445,20 @@ class _Search:
         #: two column levels for widely spread radii (direct frames): True chooses
         #: by cost, False never, a radius forces that split
         self._levels = True
+
+    def _scan_inputs(self, positions, rad):
+        """The finiteness check of ``positions`` (``as_coords``'s, same message), the
+        checks of ``rad`` (float64, one per row: ``as_radii``'s) and what the frame
+        needs of both, in one pass (``_scan_frame``): (-1, largest |x|, smallest
+        nonzero |x|, smallest radius, largest radius, True, whether the radii
+        equal the kept ones), for ``_frame``."""
+        kept = self._rad if self._rad is not None else _NO_RADII
+        scan = _scan_frame(positions, rad, kept)
+        if scan[0] >= 0:
+            raise ValueError(f"positions must be finite, got NaN or inf in row {scan[0]}")
+        if not scan[3]:
+            as_radii(rad, len(rad))  # raises what is wrong
+        return scan[:3] + (scan[4], scan[5], scan[3], scan[6] and kept is self._rad)
 
     # ------------------------------------------------------------- buffers
     def _alloc_particles(self, n):
@@ -480,11 +537,12 @@ class _Search:
     # --------------------------------------------------------------- frame
     def _frame(self, positions, rad, skin, box, pbc, labels, copy):
         t_start = time.perf_counter()
+        scan, self._scan = self._scan, None
         cs = self._cell_state(box, pbc)
         cell, pbc_arr = cs.cell, cs.pbc
         n = len(positions)
         minimum = self.periodic_images == "minimum"
-        rmax = float(rad.max()) if n else 0.0
+        rmax = (float(rad.max()) if scan is None else scan[4]) if n else 0.0
         reach_max = 2.0 * rmax + skin
         periodic_run = cell is not None
         if periodic_run and minimum:
@@ -510,14 +568,15 @@ class _Search:
         scale = 1.0
         self._fine_q = None
         if n:
-            big, fine = _magnitudes(positions)
+            big, fine = _magnitudes(positions) if scan is None else scan[1:3]
             big = max(big, cs.magnitude)
             fine = min(fine, cs.fine)
             if math.isfinite(fine):
                 # every coordinate (and cell entry) is a multiple of 2**q
                 self._fine_q = max(_exp2(fine) - 53, -1074)
+            rmin = float(rad.min()) if scan is None else scan[3]
             k = _frame_scale(big, fine, reach_max + self.rebuild_margin,
-                             2.0 * float(rad.min()) + skin, *self._names)
+                             2.0 * rmin + skin, *self._names)
             if k:
                 scale = math.ldexp(1.0, k)
                 positions = positions * scale
@@ -530,9 +589,11 @@ class _Search:
                     cs = _CellState(cell, pbc_arr)
         self._scale = scale
         self._margin = self.rebuild_margin * scale
+        # what the scan knows of the radii holds for the frame's radii when unscaled
+        self._scan_now = scan if (scan is not None and scale == 1.0 and n) else None
         # coordinates far beyond the range along an open axis: the general path,
         # which guards open axes by the range (``_build``), not by the coordinates
-        self._far = bool(n and not cs.pbc.all() and _GUARD * big * scale
+        self._far = bool(n and not cs.all_periodic and _GUARD * big * scale
                          > _far_scale(reach_max + self._margin, cs.min_periodic_width) * _FAR)
         if self._takes_small(n, minimum):  # serial kernels only: no thread setting
             self._kern = grid.serial
@@ -607,7 +668,8 @@ class _Search:
         if self._key != key:
             reason = "first frame" if self._key is None else (
                 "particle count changed" if self._key[0] != n else "cell or settings changed")
-        elif not np.array_equal(rad, self._rad):
+        elif not (self._scan_now[6] if self._scan_now is not None
+                  else np.array_equal(rad, self._rad)):
             reason = "radii changed"
         elif labels is not None and not np.array_equal(labels, self._labels):
             reason = "clump ids changed"
@@ -748,6 +810,7 @@ class _Search:
         t0 = time.perf_counter()
         self._key = key
         self._rad = rad.copy()
+        self._rad_version += 1
         self._labels = None if labels is None else labels.copy()
         self._m[:] = 0
         if n == 0:
@@ -968,15 +1031,27 @@ class _Search:
         of ``_build`` + ``_direct`` bit for bit, rows in the same order."""
         t0 = time.perf_counter()
         self._key = key
-        kept = getattr(self, "_rad", None)
+        kept = self._rad
+        scan = self._scan_now
         if kept is None or kept.shape != rad.shape:
             self._rad = rad.copy()
-        else:
+            self._rad_version += 1
+        elif not (scan[6] if scan is not None else np.array_equal(kept, rad)):
             np.copyto(kept, rad)
+            self._rad_version += 1
         self._labels = None if labels is None else labels.copy()
         use_label = labels is not None
         strict = not self.include_cutoff
-        uniform, x2 = _exact_bound(rad, skin, strict)
+        if scan is None:
+            uniform, x2 = _exact_bound(rad, skin, strict)
+        else:
+            uniform, x2 = scan[3] == scan[4], 0.0
+            if uniform:
+                thr = (float(rad[0]) + float(rad[0]) + skin, strict)
+                memo = self._square_memo
+                if memo[0] != thr:
+                    memo = self._square_memo = (thr, _square_bound(*thr))
+                x2 = memo[1]
         r_small = None if uniform else self._small_levels(positions, rad, rmax, skin, cs, n)
         fresh = self._perm is None or len(self._perm) != n
         prev = self._perm_buf if fresh else self._perm
@@ -984,17 +1059,26 @@ class _Search:
         sc = self._small_scratch
         if sc is None or len(sc[0]) < n + 2:
             sc = self._small_scratch = (np.empty(n + 2, np.int64), np.empty(n + 2, np.int64),
-                                        np.empty(n, np.uint8), np.empty((12, 2), np.int64))
-        start, cursor, big, stencil = sc
+                                        np.empty(n, np.uint8), np.empty((12, 2), np.int64),
+                                        np.empty(6 * n + 64, np.int32), np.empty(n),
+                                        np.empty(n))
+        start, cursor, big, stencil = sc[:4]
+        zidx, ts0, ts1 = sc[4:] if len(sc) > 4 else (np.empty(0, np.int32), _NO_RADII,
+                                                      _NO_RADII)
         if getattr(self, "_words", None) is None or len(self._words) < n + 64:
             self._records(4 * n + 1024)
+        q = self._computed
+        want = ("d" in q, "D" in q, "S" in q)
         while True:
-            bad, total, tested, need, nb0, nb1, exact = grid.small_count(
+            # both passes in one call while the records and the pairs fit the kept
+            # buffers (this call's output set as the last call of it left it)
+            bad, total, tested, need, nb0, nb1, exact, done = grid.small_frame(
                 positions, rad, labels if use_label else self._ls, use_label, cs.cell_k,
                 cs.hinv, cs.diag, cs.pbc, cs.widths, skin, strict, uniform, x2, _GUARD,
                 r_small or 0.0, fresh, prev, self._t, self._k, self._w, self._col, perm, start,
                 cursor, self._tz, self._xs, self._ys, self._zs, self._rs, self._ls, big,
-                stencil, self._words, self._rec_p, self._rec_q, self._rec_s, self._ks)
+                stencil, self._words, self._rec_p, self._rec_q, self._rec_s, self._ks, zidx,
+                ts0, ts1, *want, self._out_p, self._out_d, self._out_v, self._out_s)
             if bad == -2:  # a plan of more than one column layer: the general path
                 return None
             self._raise_bad(bad)
@@ -1003,13 +1087,14 @@ class _Search:
             self._records(need + need // 8 + 64)
         self._perm = perm
         self._perm_buf = prev if not fresh else np.empty(n, np.int64)
-        q = self._computed  # (small_count wrote the wrap shifts in column order)
         t1 = time.perf_counter()
         self._alloc_output(total)
-        grid.small_fill(need, self._words, self._rec_p, self._rec_q, self._rec_s, self._xs,
-                        self._ys, self._zs, self._rs, self._ls, use_label, cs.cell_k, cs.diag,
-                        skin, strict, uniform, x2, perm, self._ks, positions, exact, "d" in q,
-                        "D" in q, "S" in q, self._out_p, self._out_d, self._out_v, self._out_s)
+        if not done:  # (small_count wrote the wrap shifts in column order)
+            grid.small_fill(need, self._words, self._rec_p, self._rec_q, self._rec_s,
+                            self._xs, self._ys, self._zs, self._rs, self._ls, use_label,
+                            cs.cell_k, cs.diag, skin, strict, uniform, x2, perm, self._ks,
+                            positions, exact, *want, self._out_p, self._out_d, self._out_v,
+                            self._out_s)
         self._direct_done = True
         self._direct_total = total
         self._vneed = _NO_ENTRIES
@@ -1017,9 +1102,13 @@ class _Search:
         self._r_small = r_small
         self._cpp = (None, None)
         self._path_now = "columns"
-        self._path_reason = (f"path={self.path!r} given" if self.path != "auto" else (
-            f"{n} particles: the column sweep (the paper's sweep is considered from "
-            f"{_SWEEP_MIN_N} particles)"))
+        reason = self._small_reason
+        if reason[0] != n:
+            reason = self._small_reason = (n, f"path={self.path!r} given" if self.path != "auto"
+                                           else (f"{n} particles: the column sweep (the "
+                                                 "paper's sweep is considered from "
+                                                 f"{_SWEEP_MIN_N} particles)"))
+        self._path_reason = reason[1]
         times["sort"] = times["build"] = 0.0
         times["count"] = t1 - t0
         times["fill"] = time.perf_counter() - t1
@@ -1030,9 +1119,9 @@ class _Search:
         the extent along open axes are the same."""
         if n < 1000:
             return None
-        open_axes = ~cs.pbc
         span = 1.0
-        if open_axes.any():
+        if not cs.all_periodic:
+            open_axes = ~cs.pbc
             if cs.diag:
                 frac = positions[:, open_axes] / np.diag(cs.cell_k)[open_axes]
             else:  # (a sum of products, not a BLAS product: no BLAS threads)
@@ -1042,12 +1131,14 @@ class _Search:
             with np.errstate(over="ignore", under="ignore"):
                 span = float(np.prod(frac.max(axis=0) - frac.min(axis=0)))
         memo = getattr(self, "_small_split_memo", None)
-        key = (n, skin, span, cs.key)
-        if memo is not None and memo[0] == key and np.array_equal(memo[1], rad):
-            return memo[2]
+        # (``_small`` has just made the kept radii these: a memo of the same
+        # version of them is of the same values)
+        key = (n, skin, span, cs.key, self._rad_version)
+        if memo is not None and memo[0] == key:
+            return memo[1]
         with np.errstate(over="ignore", under="ignore", invalid="ignore"):
             r_small = _level_split(rad, rmax, skin, n, span * cs.det)
-        self._small_split_memo = (key, rad.copy(), r_small)
+        self._small_split_memo = (key, r_small)
         return r_small
 
     def _records(self, size):
@@ -1494,11 +1585,13 @@ class NeighborSearch(_Search):
         -------
         tuple of arrays (or one array) as chosen by ``quantities`` / ``layout``.
         """
-        positions = as_coords(positions, "positions")
+        positions = as_coords(positions, "positions", check_finite=False)
         n = len(positions)
-        ids = self._check_ids(ids, n)
         if self._half is None or len(self._half) != n:
             self._half = np.full(n, self._half_cutoff)
+        scan = self._scan_inputs(positions, self._half)
+        ids = self._check_ids(ids, n)
+        self._scan = scan
         return self._run_tracked(positions, self._half, self._rest, box, pbc, None, copy, ids)
 
 
@@ -1575,11 +1668,18 @@ class ContactSearch(_Search):
         -------
         tuple of arrays (or one array) as chosen by ``quantities`` / ``layout``.
         """
-        positions = as_coords(positions, "positions")
+        positions = as_coords(positions, "positions", check_finite=False)
         n = len(positions)
-        radii = as_radii(radii, n)
+        if (type(radii) is np.ndarray and radii.dtype == np.float64 and radii.shape == (n,)
+                and radii.flags.c_contiguous):
+            scan = self._scan_inputs(positions, radii)
+        else:
+            positions = as_coords(positions, "positions")
+            radii = as_radii(radii, n)
+            scan = None
         labels = None if clump_ids is None else as_labels(clump_ids, n)
         ids = self._check_ids(ids, n)
+        self._scan = scan
         return self._run_tracked(positions, radii, self.skin, box, pbc, labels, copy, ids)
 
 

@@ -1127,10 +1127,257 @@ def csr_from_pairs(n, pairs, dist, want_d, offsets, col, cd):
 # distances are those of the general path bit for bit.
 
 
+@ijit
+def _zbucket(v, zlo, inv_bz, top):
+    """Bucket of sweep coordinate ``v`` on the small path's grid of the sweep axis:
+    ``floor((v - zlo) * inv_bz)`` clamped to ``[0, top]`` (monotone in ``v``)."""
+    f = (v - zlo) * inv_bz
+    f = min(max(f, 0.0), top)
+    return np.int64(f)
+
+
+@jit
+def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell, diag,
+                 stencil, rmax, reach, inv_w2, skin, strict, uniform, x2, in2, out2, dtol,
+                 exact, xg, perm, kp, words, rec_p, rec_q, rec_s, wcap, levels, big, r_small,
+                 stencil_big, zidx, nz, zlo, inv_bz, ts0, ts1, lo0, lo1, f0, f1, inv_w0,
+                 inv_w1, guard):
+    """``_sweep_chunk`` over every column of a small frame (no self-images, no
+    Verlet list) with a window per particle.
+
+    The pairs of every (column, walk, stencil column, particle) are those of
+    ``_sweep_chunk``, in the same order (lattice shift along the sweep axis,
+    then candidate), so the records hold the same pairs in the same order;
+    only the candidates tested differ.  The window of ``p`` is its own range
+    ``(rs[p] + r_win + reach) / w_2`` (``r_win`` bounds the partners' radii
+    in this walk) instead of the largest one, and it is found without a
+    pointer walk: ``zidx[col * (nz + 1) + b]`` is the first particle of
+    column ``col`` in sweep bucket ``b`` or later (``_zbucket``), so the
+    candidates of a shift ``k`` are those of the buckets from ``lo - k`` to
+    ``hi - k``, a superset of the window (the exact test decides).  A stencil
+    column farther from ``p`` across axis 0 or 1 than that range (``ts0``,
+    ``ts1`` the fractional coordinates in column order, columns ``f0``, ``f1``
+    wide from ``lo0``, ``lo1``) holds no partner and is not visited."""
+    cnt = 0
+    tested = 0
+    w = 0
+    fast = diag and uniform and not use_label and not levels
+    loose = 1.0 + 1e-12
+    skin_sup = skin + dtol  # the supersets hold the band
+    p2 = pbc[2]
+    ztop = float(nz - 1)
+    zstride = nz + 1
+    for col in range(ncol):
+      lo_c = start[col]
+      hi_c = start[col + 1]
+      if lo_c == hi_c:
+          continue
+      b0 = col // nb1
+      b1 = col - b0 * nb1
+      for walk in range(2 if levels else 1):
+        second = walk == 1
+        st = stencil_big if second else stencil
+        n_st = st.shape[0]
+        r_win = rmax if (second or not levels) else r_small
+        rw = r_win + reach
+        # the range across axes 0 and 1, a guard more for the rounding of the
+        # column edges
+        rg = rw + guard
+        for o_st in range(0 if second else -1, n_st):
+            own = o_st < 0  # the column itself: forward in sorted order
+            s0 = 0
+            s1 = 0
+            # the gap of p to the stencil column across axis c: g_c (e_c - t_c),
+            # nothing along an axis of no offset
+            g0 = 0.0
+            g1 = 0.0
+            e0 = 0.0
+            e1 = 0.0
+            if own:
+                col2 = col
+            else:
+                o0 = st[o_st, 0]
+                o1 = st[o_st, 1]
+                if o0 > 0:
+                    g0 = 1.0
+                    e0 = lo0 + (b0 + o0) * f0
+                elif o0 < 0:
+                    g0 = -1.0
+                    e0 = lo0 + (b0 + o0 + 1) * f0
+                if o1 > 0:
+                    g1 = 1.0
+                    e1 = lo1 + (b1 + o1) * f1
+                elif o1 < 0:
+                    g1 = -1.0
+                    e1 = lo1 + (b1 + o1 + 1) * f1
+                c0 = b0 + st[o_st, 0]
+                c1 = b1 + st[o_st, 1]
+                if pbc[0]:
+                    s0 = c0 // nb0
+                    c0 -= s0 * nb0
+                elif c0 < 0 or c0 >= nb0:
+                    continue
+                if pbc[1]:
+                    s1 = c1 // nb1
+                    c1 -= s1 * nb1
+                elif c1 < 0 or c1 >= nb1:
+                    continue
+                col2 = c0 * nb1 + c1
+            lo2 = start[col2]
+            hi2 = start[col2 + 1]
+            if lo2 == hi2:
+                continue
+            zrow = col2 * zstride
+            ax = s0 * cell[0, 0]
+            ay = s0 * cell[0, 1]
+            az = s0 * cell[0, 2]
+            bx = s1 * cell[1, 0]
+            by = s1 * cell[1, 1]
+            bz = s1 * cell[1, 2]
+            for p in range(lo_c, hi_c):
+                if levels and (big[p] != second):
+                    continue
+                rp = rs[p]
+                if not own:
+                    reach_p = rp + rg
+                    if ((g0 * (e0 - ts0[p]) > reach_p * inv_w0)
+                            | (g1 * (e1 - ts1[p]) > reach_p * inv_w1)):
+                        continue
+                tp = tz[p]
+                dp = (rp + rw) * inv_w2
+                lo_v = tp - dp
+                hi_v = tp + dp
+                xp = xs[p]
+                yp = ys[p]
+                zp = zs[p]
+                lp = ls[p] if use_label else 0
+                # the shifts along the sweep axis whose images can meet the window
+                # (t in [0, 1] on a periodic axis): k + 1 >= lo_v and k <= hi_v
+                if p2:
+                    k_lo = 0 if own else np.int64(math.ceil(lo_v)) - 1
+                    k_hi = np.int64(math.floor(hi_v))
+                else:
+                    k_lo = 0
+                    k_hi = 0
+                for ka in range(k_lo, k_hi + 1):
+                    kf = float(ka)
+                    qa = zidx[zrow + _zbucket(lo_v - kf, zlo, inv_bz, ztop)]
+                    qb = zidx[zrow + _zbucket(hi_v - kf, zlo, inv_bz, ztop) + 1]
+                    if own and ka == 0:
+                        qa = max(qa, p + 1)
+                    if qa >= qb:
+                        continue
+                    cx = ka * cell[2, 0]
+                    cy = ka * cell[2, 1]
+                    cz = ka * cell[2, 2]
+                    tested += qb - qa
+                    for base in range(qa, qb, 64):
+                        top = min(base + 64, qb)
+                        word = np.uint64(0)
+                        ub = np.uint64(base)
+                        if fast and exact:
+                            pt = p - base
+                            for t in range(top - base):
+                                u = ub + np.uint64(t)
+                                dx = (xs[u] - xp) + ax
+                                dy = (ys[u] - yp) + by
+                                dz = (zs[u] - zp) + cz
+                                ok = (dx * dx + dy * dy + dz * dz <= x2) & (pt != t)
+                                word |= np.uint64(ok) << np.uint64(t)
+                        elif fast:
+                            pt = p - base
+                            inner = np.uint64(0)
+                            for t in range(top - base):
+                                u = ub + np.uint64(t)
+                                dx = (xs[u] - xp) + ax
+                                dy = (ys[u] - yp) + by
+                                dz = (zs[u] - zp) + cz
+                                d2 = dx * dx + dy * dy + dz * dz
+                                ok = (d2 <= out2) & (pt != t)
+                                word |= np.uint64(ok) << np.uint64(t)
+                                inner |= np.uint64(d2 <= in2) << np.uint64(t)
+                            bits = word & ~inner
+                            while bits:
+                                t = cttz(bits)
+                                bits &= bits - np.uint64(1)
+                                if not _reference_hit(xg, perm, kp, p, base + np.int64(t),
+                                                      cell, s0, s1, ka, 0.0, strict, True,
+                                                      x2):
+                                    word &= ~(np.uint64(1) << t)
+                        else:
+                            pt = p - base
+                            if diag:
+                                for t in range(top - base):
+                                    u = ub + np.uint64(t)
+                                    dx = (xs[u] - xp) + ax
+                                    dy = (ys[u] - yp) + by
+                                    dz = (zs[u] - zp) + cz
+                                    thr = rp + rs[u] + skin_sup
+                                    ok = dx * dx + dy * dy + dz * dz <= thr * thr * loose
+                                    if levels:
+                                        ok = ok & ((big[u] == 0) | (second & (pt < t)))
+                                    word |= np.uint64(ok) << np.uint64(t)
+                            else:
+                                for t in range(top - base):
+                                    u = ub + np.uint64(t)
+                                    dx = (((xs[u] - xp) + ax) + bx) + cx
+                                    dy = (((ys[u] - yp) + ay) + by) + cy
+                                    dz = (((zs[u] - zp) + az) + bz) + cz
+                                    thr = rp + rs[u] + skin_sup
+                                    ok = dx * dx + dy * dy + dz * dz <= thr * thr * loose
+                                    if levels:
+                                        ok = ok & ((big[u] == 0) | (second & (pt < t)))
+                                    word |= np.uint64(ok) << np.uint64(t)
+                            bits = word
+                            while bits:
+                                t = cttz(bits)
+                                bits &= bits - np.uint64(1)
+                                q2 = base + np.int64(t)
+                                ok, d2, dx, dy, dz = _pair_test(
+                                    q2, p, xs, ys, zs, ls, use_label, diag, ax, ay, az,
+                                    bx, by, bz, cx, cy, cz, xp, yp, zp, lp, False)
+                                ok = ok and _decide(d2, rp + rs[q2] + skin, strict,
+                                                    uniform, x2, in2, out2, dtol, xg,
+                                                    perm, kp, p, q2, cell, s0, s1, ka)
+                                if not ok:
+                                    word &= ~(np.uint64(1) << t)
+                        if word:
+                            if w < wcap:
+                                words[w] = word
+                                rec_p[w] = p
+                                rec_q[w] = base
+                                rec_s[w] = encode(s0, s1, ka)
+                            w += 1
+                            cnt += np.int64(ctpop(word))
+    return cnt, tested, w
+
+
+@jit
+def _small_zindex(ncol, start, tz, zidx, nz, zlo, inv_bz):
+    """``zidx`` of ``_small_sweep``: for every column its first particle in each
+    sweep bucket or later, then the column's end."""
+    ztop = float(nz - 1)
+    stride = nz + 1
+    for c in range(ncol):
+        row = c * stride
+        hi = start[c + 1]
+        b = 0
+        for q in range(start[c], hi):
+            # (sorted along the sweep axis: the buckets up to q's start at q)
+            bq = _zbucket(tz[q], zlo, inv_bz, ztop)
+            while b <= bq:
+                zidx[row + b] = q
+                b += 1
+        while b <= nz:
+            zidx[row + b] = hi
+            b += 1
+
+
 @jit
 def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, strict,
                 uniform, x2, guard_rel, r_small, fresh, prev, t, k, w, col, perm, start,
-                cursor, tz, xs, ys, zs, rs, ls, big, stencil, words, rec_p, rec_q, rec_s, kp):
+                cursor, tz, xs, ys, zs, rs, ls, big, stencil, words, rec_p, rec_q, rec_s, kp,
+                zidx, ts0, ts1):
     """Wrap, plan, sort, gather and sweep one frame (serial, minimum image, no
     Verlet list): the steps of ``search._build`` and ``direct_count`` on one
     chunk.  ``r_small > 0`` asks for two column levels split at that radius.
@@ -1284,8 +1531,12 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
             order = np.argsort(vals, kind="mergesort")
             for p in range(m):
                 perm[lo_c + p] = seg[order[p]]
+    keep01 = ts0.shape[0] >= n and ts1.shape[0] >= n
     for p in range(n):
         i = perm[p]
+        if keep01:
+            ts0[p] = t[i, 0]
+            ts1[p] = t[i, 1]
         tz[p] = t[i, 2]
         xs[p] = w[i, 0]
         ys[p] = w[i, 1]
@@ -1299,11 +1550,52 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
         kp[p, 1] = k[i, 1]
         kp[p, 2] = k[i, 2]
     chunk_start = start[:ncol + 1]
-    cnt, tested, need = _sweep_chunk(
-        0, ncol, chunk_start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell, diag,
-        stencil[:n_st], rmax, reach, 1.0 / widths[2], False, skin, strict, uniform, x2, lo2,
-        hi2, dtol, exact, x, perm, kp, words, rec_p, rec_q, rec_s, 0, words.shape[0], levels,
-        big, r_small, stencil_big, False)
+    inv_w2 = 1.0 / widths[2]
+    # buckets of the sweep axis for the windows of _small_sweep: an eighth of the
+    # widest window's half width (sixteen to a window), at most two per particle
+    # of a column
+    zlo = 0.0
+    span = 1.0
+    if not pbc[2]:
+        zlo = tz[0]
+        zhi = tz[0]
+        for p in range(1, n):
+            v = tz[p]
+            zlo = v if v < zlo else zlo
+            zhi = v if v > zhi else zhi
+        span = zhi - zlo
+    bw = 0.125 * (2.0 * (r_small if levels else rmax) + reach) * inv_w2
+    cap_nz = 2 * ((n + ncol - 1) // ncol) + 1
+    nzf = span / bw if bw > 0.0 else math.inf
+    nz = max(1, int(math.ceil(nzf))) if nzf < cap_nz else cap_nz
+    inv_bz = nz / span if span > 0.0 else 0.0
+    if not math.isfinite(inv_bz):
+        nz = 1
+        inv_bz = 0.0
+    use_z = keep01 and ncol * (nz + 1) <= zidx.shape[0]
+    if use_z:
+        _small_zindex(ncol, chunk_start, tz, zidx, nz, zlo, inv_bz)
+        # crowded buckets (positions clustered along an open sweep axis) would
+        # make the windows long: the pointer walk of _sweep_chunk then
+        fullest = 0
+        for c in range(ncol):
+            row = c * (nz + 1)
+            for b in range(nz):
+                fullest = max(fullest, zidx[row + b + 1] - zidx[row + b])
+        use_z = fullest <= 32
+    if use_z:
+        cnt, tested, need = _small_sweep(
+            ncol, chunk_start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell, diag,
+            stencil[:n_st], rmax, reach, inv_w2, skin, strict, uniform, x2, lo2, hi2, dtol,
+            exact, x, perm, kp, words, rec_p, rec_q, rec_s, words.shape[0], levels, big,
+            r_small, stencil_big, zidx, nz, zlo, inv_bz, ts0, ts1, lo0, lo1, f0, f1,
+            1.0 / widths[0], 1.0 / widths[1], guard)
+    else:
+        cnt, tested, need = _sweep_chunk(
+            0, ncol, chunk_start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell,
+            diag, stencil[:n_st], rmax, reach, inv_w2, False, skin, strict, uniform, x2,
+            lo2, hi2, dtol, exact, x, perm, kp, words, rec_p, rec_q, rec_s, 0,
+            words.shape[0], levels, big, r_small, stencil_big, False)
     return -1, cnt, tested, need, nb0, nb1, exact
 
 
@@ -1315,6 +1607,29 @@ def small_fill(need, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls, use_label, 
     return _records_fill(0, need, 0, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
                          use_label, cell, diag, False, skin, strict, uniform, x2, perm, kw,
                          x, exact, want_d, want_vec, want_shift, out_p, out_d, out_v, out_s)
+
+
+@jit
+def small_frame(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, strict,
+                uniform, x2, guard_rel, r_small, fresh, prev, t, k, w, col, perm, start,
+                cursor, tz, xs, ys, zs, rs, ls, big, stencil, words, rec_p, rec_q, rec_s, kp,
+                zidx, ts0, ts1, want_d, want_vec, want_shift, out_p, out_d, out_v, out_s):
+    """``small_count`` then, when its records and its pairs fit (``words``, the
+    outputs), ``small_fill``: a small frame in one call.  Returns
+    ``small_count``'s answer and whether the outputs were written."""
+    bad, total, tested, need, nb0, nb1, exact = small_count(
+        x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, strict, uniform, x2,
+        guard_rel, r_small, fresh, prev, t, k, w, col, perm, start, cursor, tz, xs, ys, zs,
+        rs, ls, big, stencil, words, rec_p, rec_q, rec_s, kp, zidx, ts0, ts1)
+    done = (bad == -1 and need <= words.shape[0] and total <= out_p.shape[0]
+            and (total <= out_d.shape[0] or not want_d)
+            and (total <= out_v.shape[0] or not want_vec)
+            and (total <= out_s.shape[0] or not want_shift))
+    if done:
+        _records_fill(0, need, 0, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls, use_label,
+                      cell, diag, False, skin, strict, uniform, x2, perm, kp, x, exact,
+                      want_d, want_vec, want_shift, out_p, out_d, out_v, out_s)
+    return bad, total, tested, need, nb0, nb1, exact, done
 
 
 # ------------------------------------------------------------ serial twins
