@@ -1079,8 +1079,8 @@ class _Search:
                 cursor, self._tz, self._xs, self._ys, self._zs, self._rs, self._ls, big,
                 stencil, self._words, self._rec_p, self._rec_q, self._rec_s, self._ks, zidx,
                 ts0, ts1, *want, self._out_p, self._out_d, self._out_v, self._out_s)
-            if bad == -2:  # a plan of more than one column layer: the general path
-                return None
+            if bad == -2:  # a plan of more than one column layer, or particles crowded
+                return None  # along an open sweep axis: the general path
             self._raise_bad(bad)
             if need <= len(self._words):
                 break

@@ -221,3 +221,18 @@ def test_a_plan_wider_than_the_small_stencil_falls_back():
     s._small_scratch = s._small_scratch[:3] + (np.empty((0, 2), np.int64),)
     _same(s.update(pos, radii, box, copy=True), want)
     assert s.stats["seconds"]["sort"] > 0.0  # the general path's own sort ran
+
+
+def test_particles_crowded_along_the_sweep_axis_take_the_general_path():
+    # 1,000 spheres in a thin slab across the open sweep axis: the small path's
+    # sweep buckets would each hold dozens of particles, so the frame runs the
+    # general path, with the same answer as the oracle
+    rng = np.random.default_rng(4)
+    pos = np.concatenate([rng.uniform(0, 3, (1000, 2)), rng.uniform(0, 1e-3, (1000, 1))],
+                         axis=1)
+    radii = rng.uniform(0.2, 0.4, 1000)
+    (small, s_stats), (general, _) = _pair(pos, radii, None, None)
+    _same(small, general)
+    assert s_stats["seconds"]["sort"] > 0.0  # the general path's own sort ran
+    want, _ = _oracle(pos, None, None, radii, 0.0)
+    assert sorted(map(tuple, small[0].tolist())) == sorted(map(tuple, want.tolist()))

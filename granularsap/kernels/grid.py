@@ -1382,7 +1382,8 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
     Verlet list): the steps of ``search._build`` and ``direct_count`` on one
     chunk.  ``r_small > 0`` asks for two column levels split at that radius.
     Returns (first bad input row, -1, or -2 for a stencil larger than
-    ``stencil``; pairs, candidates tested, records needed, nb0, nb1, whether
+    ``stencil`` or sweep buckets too crowded for the windows: the general path;
+    pairs, candidates tested, records needed, nb0, nb1, whether
     the frame is exact); the records are kept while they fit ``words``.  The
     wrap shifts in column order go to ``kp``; the pair test is the agreed
     arithmetic on ``x`` (the frame's ``band``)."""
@@ -1528,7 +1529,7 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
             vals = np.empty(m, np.float64)
             for p in range(m):
                 vals[p] = t[seg[p], 2]
-            order = np.argsort(vals, kind="mergesort")
+            order = stable_argsort(vals)
             for p in range(m):
                 perm[lo_c + p] = seg[order[p]]
     keep01 = ts0.shape[0] >= n and ts1.shape[0] >= n
@@ -1577,6 +1578,7 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
         _small_zindex(ncol, chunk_start, tz, zidx, nz, zlo, inv_bz)
         # crowded buckets (positions clustered along an open sweep axis) would
         # make the windows long: the pointer walk of _sweep_chunk then
+        # (the general path)
         fullest = 0
         for c in range(ncol):
             row = c * (nz + 1)
@@ -1591,11 +1593,9 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
             r_small, stencil_big, zidx, nz, zlo, inv_bz, ts0, ts1, lo0, lo1, f0, f1,
             1.0 / widths[0], 1.0 / widths[1], guard)
     else:
-        cnt, tested, need = _sweep_chunk(
-            0, ncol, chunk_start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell,
-            diag, stencil[:n_st], rmax, reach, inv_w2, False, skin, strict, uniform, x2,
-            lo2, hi2, dtol, exact, x, perm, kp, words, rec_p, rec_q, rec_s, 0,
-            words.shape[0], levels, big, r_small, stencil_big, False)
+        # the general path's pointer walk (search._build), whose kernels compile
+        # only for the frames that need them, not in every first small frame
+        return -2, 0, 0, 0, nb0, nb1, exact
     return -1, cnt, tested, need, nb0, nb1, exact
 
 
