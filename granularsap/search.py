@@ -63,11 +63,13 @@ _MAX_CHUNKS = 1024
 _MAX_BINS = 1 << 16
 _NO_BIG = np.zeros(0, np.uint8)
 _NO_ENTRIES = np.zeros(0, np.int64)
+#: ``grid.small_frame``'s ``fill`` of a whole frame (count, then fill what fits)
+_COUNT = (-1, True)
 _NO_RADII = np.zeros(0)
 #: below this many particles one thread runs (a parallel region costs more)
 _PARALLEL_MIN = 20000
 #: frames of up to this many particles (no Verlet margin, minimum image) are
-#: built by two serial kernels (``grid.small_count``, ``grid.small_fill``)
+#: built by one serial kernel (``grid.small_frame``)
 _SMALL_MAX = 20000
 #: the power-of-two scale of a frame keeps |coordinates| below 2**_POS_EXP, the
 #: interaction range below 2**_RANGE_EXP and the smallest pair threshold at or
@@ -1024,11 +1026,12 @@ class _Search:
         return int(tested.sum())
 
     def _small(self, positions, rad, skin, cs, labels, n, rmax, key, times):
-        """A frame of few particles without a Verlet margin: one serial kernel wraps,
-        plans the columns, sorts, gathers and runs pass 1 of the column sweep
-        (``grid.small_count``), a second writes the outputs (``grid.small_fill``).
-        They run the general path's sweep on one chunk, so the answer is that
-        of ``_build`` + ``_direct`` bit for bit, rows in the same order."""
+        """A frame of few particles without a Verlet margin: one serial kernel call
+        (``grid.small_frame``) wraps, plans the columns, sorts, gathers, runs pass
+        1 of the column sweep and writes the outputs (a second call writes them
+        when they had to grow).  It is the general path's sweep on one chunk, so
+        the answer is that of ``_build`` + ``_direct`` bit for bit, rows in the
+        same order."""
         t0 = time.perf_counter()
         self._key = key
         kept = self._rad
@@ -1069,6 +1072,7 @@ class _Search:
             self._records(4 * n + 1024)
         q = self._computed
         want = ("d" in q, "D" in q, "S" in q)
+        fast, tri = grid.small_mode(cs.diag, uniform, use_label, bool(r_small))
         while True:
             # both passes in one call while the records and the pairs fit the kept
             # buffers (this call's output set as the last call of it left it)
@@ -1078,9 +1082,12 @@ class _Search:
                 r_small or 0.0, fresh, prev, self._t, self._k, self._w, self._col, perm, start,
                 cursor, self._tz, self._xs, self._ys, self._zs, self._rs, self._ls, big,
                 stencil, self._words, self._rec_p, self._rec_q, self._rec_s, self._ks, zidx,
-                ts0, ts1, *want, self._out_p, self._out_d, self._out_v, self._out_s)
+                ts0, ts1, *want, self._out_p, self._out_d, self._out_v, self._out_s, fast,
+                tri, _COUNT)
             if bad == -2:  # a plan of more than one column layer, or particles crowded
                 return None  # along an open sweep axis: the general path
+            if bad == -3:
+                raise AssertionError("small frame: the candidate loop given is not the frame's")
             self._raise_bad(bad)
             if need <= len(self._words):
                 break
@@ -1089,12 +1096,15 @@ class _Search:
         self._perm_buf = prev if not fresh else np.empty(n, np.int64)
         t1 = time.perf_counter()
         self._alloc_output(total)
-        if not done:  # (small_count wrote the wrap shifts in column order)
-            grid.small_fill(need, self._words, self._rec_p, self._rec_q, self._rec_s,
-                            self._xs, self._ys, self._zs, self._rs, self._ls, use_label,
-                            cs.cell_k, cs.diag, skin, strict, uniform, x2, perm, self._ks,
-                            positions, exact, *want, self._out_p, self._out_d, self._out_v,
-                            self._out_s)
+        if not done:  # the pairs of the records just made, into the grown outputs
+            grid.small_frame(
+                positions, rad, labels if use_label else self._ls, use_label, cs.cell_k,
+                cs.hinv, cs.diag, cs.pbc, cs.widths, skin, strict, uniform, x2, _GUARD,
+                r_small or 0.0, fresh, prev, self._t, self._k, self._w, self._col, perm, start,
+                cursor, self._tz, self._xs, self._ys, self._zs, self._rs, self._ls, big,
+                stencil, self._words, self._rec_p, self._rec_q, self._rec_s, self._ks, zidx,
+                ts0, ts1, *want, self._out_p, self._out_d, self._out_v, self._out_s, fast,
+                tri, (int(need), bool(exact)))
         self._direct_done = True
         self._direct_total = total
         self._vneed = _NO_ENTRIES

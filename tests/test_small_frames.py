@@ -1,5 +1,5 @@
 """Small frames: searches of up to ``_SMALL_MAX`` particles without a Verlet margin run
-two serial kernels (``grid.small_count``, ``grid.small_fill``) and keep the resolved
+one serial kernel (``grid.small_frame``) and keep the resolved
 cell between calls.  Their answer must be the general path's bit for bit (rows in the
 same order) and the brute-force oracle's, for every size down to 0 particles."""
 

@@ -1127,6 +1127,14 @@ def csr_from_pairs(n, pairs, dist, want_d, offsets, col, cd):
 # distances are those of the general path bit for bit.
 
 
+#: the small path's rare-branch helpers as called functions rather than IR
+#: inlined ones: typed once, not again at every call site (LLVM still inlines)
+_wrap_one_c = jit(_wrap_one.py_func)
+_reference_hit_c = jit(_reference_hit.py_func)
+_pair_test_c = jit(_pair_test.py_func)
+_decide_c = jit(_decide.py_func)
+
+
 @ijit
 def _zbucket(v, zlo, inv_bz, top):
     """Bucket of sweep coordinate ``v`` on the small path's grid of the sweep axis:
@@ -1141,7 +1149,7 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                  stencil, rmax, reach, inv_w2, skin, strict, uniform, x2, in2, out2, dtol,
                  exact, xg, perm, kp, words, rec_p, rec_q, rec_s, wcap, levels, big, r_small,
                  stencil_big, zidx, nz, zlo, inv_bz, ts0, ts1, lo0, lo1, f0, f1, inv_w0,
-                 inv_w1, guard):
+                 inv_w1, guard, fast, tri):
     """``_sweep_chunk`` over every column of a small frame (no self-images, no
     Verlet list) with a window per particle.
 
@@ -1157,11 +1165,17 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
     ``hi - k``, a superset of the window (the exact test decides).  A stencil
     column farther from ``p`` across axis 0 or 1 than that range (``ts0``,
     ``ts1`` the fractional coordinates in column order, columns ``f0``, ``f1``
-    wide from ``lo0``, ``lo1``) holds no partner and is not visited."""
+    wide from ``lo0``, ``lo1``) holds no partner and is not visited.
+
+    ``fast`` and ``tri`` (``small_mode``, each True or None) name the one
+    candidate loop the frame takes: the vectorised loop of an orthorhombic
+    cell with one threshold, no labels and one level (``fast``), else the
+    superset loop of an orthorhombic or (``tri``) a triclinic cell.  A None is
+    a type of its own to numba, which drops the branches it rules out before
+    typing: a first frame compiles only the loop it takes."""
     cnt = 0
     tested = 0
     w = 0
-    fast = diag and uniform and not use_label and not levels
     loose = 1.0 + 1e-12
     skin_sup = skin + dtol  # the supersets hold the band
     p2 = pbc[2]
@@ -1275,7 +1289,7 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                         top = min(base + 64, qb)
                         word = np.uint64(0)
                         ub = np.uint64(base)
-                        if fast and exact:
+                        if fast is not None and exact:
                             pt = p - base
                             for t in range(top - base):
                                 u = ub + np.uint64(t)
@@ -1284,7 +1298,7 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                                 dz = (zs[u] - zp) + cz
                                 ok = (dx * dx + dy * dy + dz * dz <= x2) & (pt != t)
                                 word |= np.uint64(ok) << np.uint64(t)
-                        elif fast:
+                        elif fast is not None:
                             pt = p - base
                             inner = np.uint64(0)
                             for t in range(top - base):
@@ -1300,13 +1314,13 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                             while bits:
                                 t = cttz(bits)
                                 bits &= bits - np.uint64(1)
-                                if not _reference_hit(xg, perm, kp, p, base + np.int64(t),
+                                if not _reference_hit_c(xg, perm, kp, p, base + np.int64(t),
                                                       cell, s0, s1, ka, 0.0, strict, True,
                                                       x2):
                                     word &= ~(np.uint64(1) << t)
                         else:
                             pt = p - base
-                            if diag:
+                            if tri is None:
                                 for t in range(top - base):
                                     u = ub + np.uint64(t)
                                     dx = (xs[u] - xp) + ax
@@ -1333,10 +1347,10 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                                 t = cttz(bits)
                                 bits &= bits - np.uint64(1)
                                 q2 = base + np.int64(t)
-                                ok, d2, dx, dy, dz = _pair_test(
+                                ok, d2, dx, dy, dz = _pair_test_c(
                                     q2, p, xs, ys, zs, ls, use_label, diag, ax, ay, az,
                                     bx, by, bz, cx, cy, cz, xp, yp, zp, lp, False)
-                                ok = ok and _decide(d2, rp + rs[q2] + skin, strict,
+                                ok = ok and _decide_c(d2, rp + rs[q2] + skin, strict,
                                                     uniform, x2, in2, out2, dtol, xg,
                                                     perm, kp, p, q2, cell, s0, s1, ka)
                                 if not ok:
@@ -1373,27 +1387,32 @@ def _small_zindex(ncol, start, tz, zidx, nz, zlo, inv_bz):
             b += 1
 
 
+def small_mode(diag, uniform, use_label, levels):
+    """``(fast, tri)`` of ``_small_sweep`` for a frame, each True or None: the
+    vectorised loop of ``_sweep_chunk``'s common case, or the superset loop of
+    an orthorhombic or a triclinic cell."""
+    fast = diag and uniform and not use_label and not levels
+    return (True if fast else None), (True if not fast and not diag else None)
+
+
 @jit
-def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, strict,
-                uniform, x2, guard_rel, r_small, fresh, prev, t, k, w, col, perm, start,
-                cursor, tz, xs, ys, zs, rs, ls, big, stencil, words, rec_p, rec_q, rec_s, kp,
-                zidx, ts0, ts1):
-    """Wrap, plan, sort, gather and sweep one frame (serial, minimum image, no
-    Verlet list): the steps of ``search._build`` and ``direct_count`` on one
-    chunk.  ``r_small > 0`` asks for two column levels split at that radius.
+def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x2,
+                guard_rel, r_small, fresh, prev, t, k, w, col, perm, start, cursor, tz, xs,
+                ys, zs, rs, ls, big, stencil, kp, zidx, ts0, ts1):
+    """Wrap, plan, sort and gather one frame for ``_small_sweep``: the steps of
+    ``search._build`` on one chunk, and the sweep buckets of the windows.
     Returns (first bad input row, -1, or -2 for a stencil larger than
-    ``stencil`` or sweep buckets too crowded for the windows: the general path;
-    pairs, candidates tested, records needed, nb0, nb1, whether
-    the frame is exact); the records are kept while they fit ``words``.  The
-    wrap shifts in column order go to ``kp``; the pair test is the agreed
-    arithmetic on ``x`` (the frame's ``band``)."""
+    ``stencil`` or sweep buckets too crowded for the windows: the general
+    path; nb0, nb1, then what ``_small_sweep`` takes: the band (``lo2``,
+    ``hi2``, ``dtol``, ``exact``), the stencils, the largest radius, the reach
+    and guard, the buckets and the column edges)."""
     n = x.shape[0]
     bad = -1
     extent = 0.0
     rmax = 0.0
     kmax = np.int64(0)
     for i in range(n):
-        if not _wrap_one(x, i, hinv, cell, diag, pbc, t, k, w, i):
+        if not _wrap_one_c(x, i, hinv, cell, diag, pbc, t, k, w, i):
             if bad < 0:
                 bad = i
         for c in range(3):
@@ -1402,8 +1421,10 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
             kc = abs(k[i, c])
             kmax = kc if kc > kmax else kmax
         rmax = rad[i] if rad[i] > rmax else rmax
+    none = np.empty((0, 2), np.int64)
     if bad >= 0 or n == 0:
-        return bad, 0, 0, 0, 1, 1, True
+        return (bad, 1, 1, x2, x2, 0.0, True, 0, none, 0.0, 0.0, 0.0, 1, 0.0, 0.0, 0.0, 0.0,
+                0.0, 0.0)
     lo2, hi2, dtol, exact = frame_band(extent, kmax, cell, pbc, widths, 2.0 * rmax + skin,
                                        2.0 * rmax + skin, x2)
     extent = extent + 2.0 * rmax + skin
@@ -1479,7 +1500,8 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
     if n_st > stencil.shape[0]:
         # columns a rounding narrower than the range can need two layers: the
         # caller has room for those; anything wider goes to the general path
-        return -2, 0, 0, 0, nb0, nb1, exact
+        return (-2, nb0, nb1, lo2, hi2, dtol, exact, 0, none, rmax, reach, guard, 1, 0.0,
+                0.0, lo0, lo1, f0, f1)
     stencil_big = np.empty(((2 * B0 + 1) * (2 * B1 + 1) if levels else 0, 2), np.int64)
     if levels:
         j = 0
@@ -1585,43 +1607,61 @@ def small_count(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
             for b in range(nz):
                 fullest = max(fullest, zidx[row + b + 1] - zidx[row + b])
         use_z = fullest <= 32
-    if use_z:
-        cnt, tested, need = _small_sweep(
-            ncol, chunk_start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell, diag,
-            stencil[:n_st], rmax, reach, inv_w2, skin, strict, uniform, x2, lo2, hi2, dtol,
-            exact, x, perm, kp, words, rec_p, rec_q, rec_s, words.shape[0], levels, big,
-            r_small, stencil_big, zidx, nz, zlo, inv_bz, ts0, ts1, lo0, lo1, f0, f1,
-            1.0 / widths[0], 1.0 / widths[1], guard)
-    else:
+    if not use_z:
         # the general path's pointer walk (search._build), whose kernels compile
         # only for the frames that need them, not in every first small frame
-        return -2, 0, 0, 0, nb0, nb1, exact
-    return -1, cnt, tested, need, nb0, nb1, exact
-
-
-@jit
-def small_fill(need, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls, use_label, cell, diag,
-               skin, strict, uniform, x2, perm, kw, x, exact, want_d, want_vec, want_shift,
-               out_p, out_d, out_v, out_s):
-    """Pass 2 of ``small_count``'s frame: the pairs of its records, in order."""
-    return _records_fill(0, need, 0, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
-                         use_label, cell, diag, False, skin, strict, uniform, x2, perm, kw,
-                         x, exact, want_d, want_vec, want_shift, out_p, out_d, out_v, out_s)
+        bad = -2
+    return (bad, nb0, nb1, lo2, hi2, dtol, exact, n_st, stencil_big, rmax, reach, guard, nz,
+            zlo, inv_bz, lo0, lo1, f0, f1)
 
 
 @jit
 def small_frame(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, strict,
                 uniform, x2, guard_rel, r_small, fresh, prev, t, k, w, col, perm, start,
                 cursor, tz, xs, ys, zs, rs, ls, big, stencil, words, rec_p, rec_q, rec_s, kp,
-                zidx, ts0, ts1, want_d, want_vec, want_shift, out_p, out_d, out_v, out_s):
-    """``small_count`` then, when its records and its pairs fit (``words``, the
-    outputs), ``small_fill``: a small frame in one call.  Returns
-    ``small_count``'s answer and whether the outputs were written."""
-    bad, total, tested, need, nb0, nb1, exact = small_count(
-        x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, strict, uniform, x2,
-        guard_rel, r_small, fresh, prev, t, k, w, col, perm, start, cursor, tz, xs, ys, zs,
-        rs, ls, big, stencil, words, rec_p, rec_q, rec_s, kp, zidx, ts0, ts1)
-    done = (bad == -1 and need <= words.shape[0] and total <= out_p.shape[0]
+                zidx, ts0, ts1, want_d, want_vec, want_shift, out_p, out_d, out_v, out_s,
+                fast, tri, fill):
+    """One small frame (serial, minimum image, no Verlet list) in one call: wrap,
+    plan, sort and gather (``_small_plan``, the steps of ``search._build`` on
+    one chunk), sweep (``_small_sweep``, pass 1 of ``direct_count``) and, when
+    the records and the pairs fit ``words`` and the outputs, write the pairs
+    (``_records_fill``).  ``r_small > 0`` asks for two column levels split at
+    that radius; ``fast`` and ``tri`` are ``small_mode`` of the frame (each
+    True or None: the one candidate loop compiled).  ``fill = (need, exact)``
+    with ``need >= 0`` only writes the pairs of the records of the call before
+    (into outputs grown since).
+
+    Returns (first bad input row, -1, or -2 for a stencil larger than
+    ``stencil`` or sweep buckets too crowded for the windows: the general
+    path, -3 for ``fast`` and ``tri`` not the frame's; pairs, candidates
+    tested, records needed, nb0, nb1, whether the frame is exact, whether the
+    outputs were written).  The wrap shifts in column order go to ``kp``; the
+    pair test is the agreed arithmetic on ``x`` (the frame's ``band``)."""
+    need, exact = fill
+    if need >= 0:
+        total = _records_fill(0, need, 0, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
+                              use_label, cell, diag, False, skin, strict, uniform, x2, perm,
+                              kp, x, exact, want_d, want_vec, want_shift, out_p, out_d, out_v,
+                              out_s)
+        return -1, total, 0, need, 0, 0, exact, True
+    (bad, nb0, nb1, lo2, hi2, dtol, exact, n_st, stencil_big, rmax, reach, guard, nz, zlo,
+     inv_bz, lo0, lo1, f0, f1) = _small_plan(
+        x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x2, guard_rel, r_small,
+        fresh, prev, t, k, w, col, perm, start, cursor, tz, xs, ys, zs, rs, ls, big, stencil,
+        kp, zidx, ts0, ts1)
+    if bad != -1 or x.shape[0] == 0:
+        return bad, 0, 0, 0, nb0, nb1, exact, bad == -1
+    want = diag and uniform and not use_label and not r_small > 0.0  # small_mode
+    if (fast is not None) != want or (tri is not None) != (not want and not diag):
+        return -3, 0, 0, 0, nb0, nb1, exact, False  # the caller's error
+    ncol = nb0 * nb1
+    total, tested, need = _small_sweep(
+        ncol, start[:ncol + 1], nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell, diag,
+        stencil[:n_st], rmax, reach, 1.0 / widths[2], skin, strict, uniform, x2, lo2, hi2,
+        dtol, exact, x, perm, kp, words, rec_p, rec_q, rec_s, words.shape[0], r_small > 0.0,
+        big, r_small, stencil_big, zidx, nz, zlo, inv_bz, ts0, ts1, lo0, lo1, f0, f1,
+        1.0 / widths[0], 1.0 / widths[1], guard, fast, tri)
+    done = (need <= words.shape[0] and total <= out_p.shape[0]
             and (total <= out_d.shape[0] or not want_d)
             and (total <= out_v.shape[0] or not want_vec)
             and (total <= out_s.shape[0] or not want_shift))
@@ -1629,7 +1669,7 @@ def small_frame(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
         _records_fill(0, need, 0, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls, use_label,
                       cell, diag, False, skin, strict, uniform, x2, perm, kp, x, exact,
                       want_d, want_vec, want_shift, out_p, out_d, out_v, out_s)
-    return bad, total, tested, need, nb0, nb1, exact, done
+    return -1, total, tested, need, nb0, nb1, exact, done
 
 
 # ------------------------------------------------------------ serial twins
