@@ -1072,7 +1072,7 @@ class _Search:
             self._records(4 * n + 1024)
         q = self._computed
         want = ("d" in q, "D" in q, "S" in q)
-        fast, tri = grid.small_mode(cs.diag, uniform, use_label, bool(r_small))
+        fast, tri = grid.loop_mode(cs.diag, uniform, use_label, bool(r_small))
         while True:
             # both passes in one call while the records and the pairs fit the kept
             # buffers (this call's output set as the last call of it left it)
@@ -1172,6 +1172,7 @@ class _Search:
         if wcap is None or len(wcap) != n_chunks:
             wcap = rows * (len(stencil) + 3) + 64
         todo = np.ones(n_chunks, np.bool_)
+        mode = grid.loop_mode(tests[0], tests[8], geometry[11], levels[0])
         while True:
             wstart = np.zeros(n_chunks, np.int64)
             wstart[1:] = np.cumsum(wcap)[:-1]
@@ -1185,7 +1186,7 @@ class _Search:
                 todo[:] = True
             records = (self._words, self._rec_p, self._rec_q, self._rec_s)
             self._kern.direct_count(*geometry, *tests, *band, *records, wstart, wcap, counts,
-                                    tested, wneed, todo, *levels, verlet)
+                                    tested, wneed, todo, *levels, verlet, *mode)
             over = wneed > wcap
             if not over.any():
                 break

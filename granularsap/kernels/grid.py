@@ -547,7 +547,7 @@ def _pair_test(q, p, xs, ys, zs, ls, use_label, diag, ax, ay, az, bx, by, bz, cx
 def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label,
                  cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform,
                  x2, in2, out2, dtol, exact, xg, perm, kp, words, rec_p, rec_q, rec_s, wbase,
-                 wcap, levels, big, r_small, stencil_big, verlet):
+                 wcap, levels, big, r_small, stencil_big, verlet, fast, tri):
     """Pass 1 of a direct frame: test every candidate of the columns
     ``[c_lo, c_hi)`` and keep the outcome as records (``records_fill`` reads
     them): a 64-bit mask of the pairs found among up to 64 consecutive
@@ -580,11 +580,16 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
     everything, a pair of two large ones being kept by its lower end.  So a
     few large spheres widen neither the columns nor the windows of the rest
     (the hierarchical grids of polydisperse packings).
+
+    ``fast`` and ``tri`` (``loop_mode``, each True or None) name the candidate
+    loop: the vectorised one of an orthorhombic cell with one threshold, no
+    labels and one level (``fast``), else the superset loop of an orthorhombic
+    or (``tri``) a triclinic cell.  numba types a None apart and drops the
+    branches it rules out before typing, so a frame compiles only its loop.
     """
     cnt = 0
     tested = 0
     w = 0
-    fast = diag and uniform and not use_label and not levels
     loose = 1.0 + 1e-12
     skin_sup = skin + dtol  # the supersets hold the band
     p2 = pbc[2]
@@ -701,7 +706,7 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                         # unsigned indices need no wraparound fix (so the loops
                         # vectorise) and, unlike slices, no reference counting
                         ub = np.uint64(base)
-                        if fast and exact:
+                        if fast is not None and exact:
                             # the common case written out, so that it vectorises
                             pt = p - base
                             for t in range(top - base):
@@ -712,7 +717,7 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                                 ok = ((dx * dx + dy * dy + dz * dz <= x2)
                                       & ((pt != t) | self_images))
                                 word |= np.uint64(ok) << np.uint64(t)
-                        elif fast:
+                        elif fast is not None:
                             # the same with the band: ``word`` the pairs up to out2,
                             # ``inner`` those clearly in; the rest is re-tested
                             pt = p - base
@@ -741,7 +746,7 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                             # second large with small, and large with large from
                             # the lower end
                             pt = p - base
-                            if diag:
+                            if tri is None:
                                 for t in range(top - base):
                                     u = ub + np.uint64(t)
                                     dx = (xs[u] - xp) + ax
@@ -864,10 +869,11 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
 def direct_count(chunk_cols, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell,
                  diag, stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform, x2,
                  lo2, hi2, dtol, exact, xg, perm, kp, words, rec_p, rec_q, rec_s, wstart,
-                 wcap, counts, tested, wneed, todo, levels, big, r_small, stencil_big, verlet):
+                 wcap, counts, tested, wneed, todo, levels, big, r_small, stencil_big, verlet,
+                 fast, tri):
     """Pass 1 of a direct frame (no Verlet list) for every chunk marked in
     ``todo``: its pairs into ``counts``, its records into ``wneed`` (kept when
-    they fit its ``wcap``)."""
+    they fit its ``wcap``); ``fast`` and ``tri`` are ``loop_mode`` of the frame."""
     n_chunks = chunk_cols.shape[0] - 1
     for c in numba.prange(n_chunks):
         if not todo[c]:
@@ -876,7 +882,7 @@ def direct_count(chunk_cols, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
             chunk_cols[c], chunk_cols[c + 1], start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls,
             use_label, cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict,
             uniform, x2, lo2, hi2, dtol, exact, xg, perm, kp, words, rec_p, rec_q, rec_s,
-            wstart[c], wcap[c], levels, big, r_small, stencil_big, verlet)
+            wstart[c], wcap[c], levels, big, r_small, stencil_big, verlet, fast, tri)
 
 
 @pjit
@@ -1167,7 +1173,7 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
     ``ts1`` the fractional coordinates in column order, columns ``f0``, ``f1``
     wide from ``lo0``, ``lo1``) holds no partner and is not visited.
 
-    ``fast`` and ``tri`` (``small_mode``, each True or None) name the one
+    ``fast`` and ``tri`` (``loop_mode``, each True or None) name the one
     candidate loop the frame takes: the vectorised loop of an orthorhombic
     cell with one threshold, no labels and one level (``fast``), else the
     superset loop of an orthorhombic or (``tri``) a triclinic cell.  A None is
@@ -1387,10 +1393,10 @@ def _small_zindex(ncol, start, tz, zidx, nz, zlo, inv_bz):
             b += 1
 
 
-def small_mode(diag, uniform, use_label, levels):
-    """``(fast, tri)`` of ``_small_sweep`` for a frame, each True or None: the
-    vectorised loop of ``_sweep_chunk``'s common case, or the superset loop of
-    an orthorhombic or a triclinic cell."""
+def loop_mode(diag, uniform, use_label, levels):
+    """``(fast, tri)`` of ``_sweep_chunk`` and ``_small_sweep`` for a frame, each
+    True or None: the vectorised loop of the common case, or the superset loop
+    of an orthorhombic or a triclinic cell."""
     fast = diag and uniform and not use_label and not levels
     return (True if fast else None), (True if not fast and not diag else None)
 
@@ -1626,7 +1632,7 @@ def small_frame(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
     one chunk), sweep (``_small_sweep``, pass 1 of ``direct_count``) and, when
     the records and the pairs fit ``words`` and the outputs, write the pairs
     (``_records_fill``).  ``r_small > 0`` asks for two column levels split at
-    that radius; ``fast`` and ``tri`` are ``small_mode`` of the frame (each
+    that radius; ``fast`` and ``tri`` are ``loop_mode`` of the frame (each
     True or None: the one candidate loop compiled).  ``fill = (need, exact)``
     with ``need >= 0`` only writes the pairs of the records of the call before
     (into outputs grown since).
@@ -1651,7 +1657,7 @@ def small_frame(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
         kp, zidx, ts0, ts1)
     if bad != -1 or x.shape[0] == 0:
         return bad, 0, 0, 0, nb0, nb1, exact, bad == -1
-    want = diag and uniform and not use_label and not r_small > 0.0  # small_mode
+    want = diag and uniform and not use_label and not r_small > 0.0  # loop_mode
     if (fast is not None) != want or (tri is not None) != (not want and not diag):
         return -3, 0, 0, 0, nb0, nb1, exact, False  # the caller's error
     ncol = nb0 * nb1
