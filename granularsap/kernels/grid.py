@@ -1133,14 +1133,6 @@ def csr_from_pairs(n, pairs, dist, want_d, offsets, col, cd):
 # distances are those of the general path bit for bit.
 
 
-#: the small path's rare-branch helpers as called functions rather than IR
-#: inlined ones: typed once, not again at every call site (LLVM still inlines)
-_wrap_one_c = jit(_wrap_one.py_func)
-_reference_hit_c = jit(_reference_hit.py_func)
-_pair_test_c = jit(_pair_test.py_func)
-_decide_c = jit(_decide.py_func)
-
-
 @ijit
 def _zbucket(v, zlo, inv_bz, top):
     """Bucket of sweep coordinate ``v`` on the small path's grid of the sweep axis:
@@ -1320,7 +1312,7 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                             while bits:
                                 t = cttz(bits)
                                 bits &= bits - np.uint64(1)
-                                if not _reference_hit_c(xg, perm, kp, p, base + np.int64(t),
+                                if not _reference_hit(xg, perm, kp, p, base + np.int64(t),
                                                       cell, s0, s1, ka, 0.0, strict, True,
                                                       x2):
                                     word &= ~(np.uint64(1) << t)
@@ -1353,10 +1345,10 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                                 t = cttz(bits)
                                 bits &= bits - np.uint64(1)
                                 q2 = base + np.int64(t)
-                                ok, d2, dx, dy, dz = _pair_test_c(
+                                ok, d2, dx, dy, dz = _pair_test(
                                     q2, p, xs, ys, zs, ls, use_label, diag, ax, ay, az,
                                     bx, by, bz, cx, cy, cz, xp, yp, zp, lp, False)
-                                ok = ok and _decide_c(d2, rp + rs[q2] + skin, strict,
+                                ok = ok and _decide(d2, rp + rs[q2] + skin, strict,
                                                     uniform, x2, in2, out2, dtol, xg,
                                                     perm, kp, p, q2, cell, s0, s1, ka)
                                 if not ok:
@@ -1418,7 +1410,7 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
     rmax = 0.0
     kmax = np.int64(0)
     for i in range(n):
-        if not _wrap_one_c(x, i, hinv, cell, diag, pbc, t, k, w, i):
+        if not _wrap_one(x, i, hinv, cell, diag, pbc, t, k, w, i):
             if bad < 0:
                 bad = i
         for c in range(3):
