@@ -55,7 +55,7 @@ import time
 import numpy as np
 
 from ._numba import jit
-from .periodic import perpendicular_widths
+from .cell import widths_of
 
 __all__ = ["available_memory", "bytes_per_pair", "check_pair_memory", "column_pair_bound",
            "pair_lower_bound"]
@@ -283,7 +283,7 @@ def _grid(t, cell, pbc, reach, n, cells):
         side *= 1.25
 
 
-def pair_lower_bound(t, cell, pbc, reach, *, all_images=False, cells=None):
+def pair_lower_bound(t, cell, pbc, reach, *, all_images=False, cells=None, widths=None):
     """A number of pairs within ``reach`` that the frame has at least.
 
     Parameters
@@ -299,6 +299,8 @@ def pair_lower_bound(t, cell, pbc, reach, *, all_images=False, cells=None):
     all_images : bool
         Count every periodic image of a pair within ``reach`` (a particle with
         its own images too) instead of one per pair.
+    widths : (3,) array of float, optional
+        The perpendicular widths of ``cell`` when the caller holds them.
 
     Returns
     -------
@@ -328,7 +330,7 @@ def pair_lower_bound(t, cell, pbc, reach, *, all_images=False, cells=None):
     # edge vectors of one grid cell, and its widths between opposite faces: an
     # offset o has a corner pair at least (|o_c| + 1) widths apart along axis c
     edge = cell * (span / shape)[:, None]
-    widths = perpendicular_widths(cell) * span / shape
+    widths = (widths_of(cell) if widths is None else widths) * span / shape
     kmax = np.zeros(3, np.int64)
     for c in range(3):
         if widths[c] > 0:
@@ -362,7 +364,7 @@ def _gib(b):
     return f"{b / 2 ** 30:.3g} GiB"
 
 
-def check_pair_memory(search, t, cell, pbc, reach, labels=None, columns=None):
+def check_pair_memory(search, t, frame_cell, reach, labels=None, columns=None):
     """Raise :class:`MemoryError` when a frame's pairs cannot fit in memory.
 
     Called once per build of a search, before any pair is searched (see the
@@ -372,9 +374,10 @@ def check_pair_memory(search, t, cell, pbc, reach, labels=None, columns=None):
     ----------
     search : NeighborSearch or ContactSearch
         Its ``quantities``, ``layout`` and ``periodic_images`` (read only).
-    t, cell, pbc
-        As for :func:`pair_lower_bound` (the search's wrapped fractional
-        coordinates and full cell matrix).
+    t : (n, 3) array of float
+        The search's wrapped fractional coordinates (:func:`pair_lower_bound`).
+    frame_cell : granularsap.geometry.FrameCell
+        The frame's resolved cell (its matrix, pbc and widths).
     reach : float
         The smallest range of any pair (``2 * min(radii) + skin``; the cutoff).
     labels : (n,) array of int, optional
@@ -394,8 +397,9 @@ def check_pair_memory(search, t, cell, pbc, reach, labels=None, columns=None):
     --------
     >>> import numpy as np
     >>> from granularsap import NeighborSearch
+    >>> from granularsap.geometry import FrameCell
     >>> t = np.random.default_rng(0).uniform(0, 1, (100, 3))
-    >>> check_pair_memory(NeighborSearch(0.4), t, np.eye(3), np.ones(3, bool), 0.4)
+    >>> check_pair_memory(NeighborSearch(0.4), t, FrameCell.of(np.eye(3), True), 0.4)
     """
     n = len(t)
     # what the kernels write (contact identity with every image adds shifts)
@@ -407,9 +411,8 @@ def check_pair_memory(search, t, cell, pbc, reach, labels=None, columns=None):
         return
     per = bytes_per_pair(quantities, layout)
     upper = n * (n - 1) / 2.0
-    pbc = np.asarray(pbc, dtype=bool)
+    cell, pbc, width = frame_cell.matrix, frame_cell.pbc, frame_cell.widths
     if all_images and pbc.any():
-        width = perpendicular_widths(np.asarray(cell, dtype=np.float64))
         images = np.prod([2 * math.ceil(reach / width[c]) + 1 if pbc[c] else 1
                           for c in range(3)])
         upper = n * (n + 1) / 2.0 * images
@@ -438,10 +441,12 @@ def check_pair_memory(search, t, cell, pbc, reach, labels=None, columns=None):
         step = n // _SAMPLE
         sample = t[::step]
         m = len(sample)
-        est, _ = pair_lower_bound(sample, cell, pbc, reach, all_images=all_images)
+        est, _ = pair_lower_bound(sample, cell, pbc, reach, all_images=all_images,
+                                  widths=width)
         if est * (n / m) ** 2 * per * 16 < avail:
             return
-    bound, shape = pair_lower_bound(t, cell, pbc, reach, all_images=all_images)
+    bound, shape = pair_lower_bound(t, cell, pbc, reach, all_images=all_images,
+                                    widths=width)
     if labels is not None and bound:
         _, sizes = np.unique(labels, return_counts=True)
         if all_images:

@@ -898,15 +898,6 @@ class SweepAndPrune:
         self._swaps += 1
 
 
-def _box_overlaps_path(lower, upper, *, path=None, n_threads=None, partitions=None,
-                       axes="auto"):
-    """``box_overlaps`` with the algorithm path forced (tests and benchmarks)."""
-    engine = SweepAndPrune(axes=axes, n_threads=n_threads)
-    engine._path = path
-    engine._partitions = partitions
-    return engine.update(lower, upper)
-
-
 #: cross-set grid: boxes of the second set spanning more cells than this, and
 #: boxes of the first visiting more, go to the cross-set sweep instead
 _CROSS_MAX_SPAN = 64

@@ -120,6 +120,22 @@ def _is_diagonal(m):
     return not np.any(m - np.diag(np.diag(m)))
 
 
+def widths_of(full):
+    """Perpendicular widths ``V / |a_{c+1} x a_{c+2}|`` of a complete, valid (3, 3)
+    float64 matrix (:attr:`Cell.perpendicular_widths`, which validates first):
+    the diagonal of an orthorhombic one exactly."""
+    if _is_diagonal(full):
+        return np.abs(np.diag(full)).copy()
+    # on the cell scaled by a power of two (exact, the same bits) so that volumes
+    # and areas neither overflow nor underflow
+    e = int(np.frexp(np.abs(full).max())[1])
+    cell = np.ldexp(full, -e)
+    vol = abs(np.linalg.det(cell))
+    areas = np.array([np.linalg.norm(np.cross(cell[(c + 1) % 3], cell[(c + 2) % 3]))
+                      for c in range(3)])
+    return np.ldexp(vol / areas, e)
+
+
 def _readonly(a):
     a = np.array(a, dtype=a.dtype, order="C")
     a.flags.writeable = False
@@ -419,18 +435,7 @@ class Cell:
         Exactly the diagonal for an orthorhombic cell.
         """
         if self._widths is None:
-            cell = self._full
-            if _is_diagonal(cell):
-                w = np.abs(np.diag(cell)).copy()
-            else:
-                # on the cell scaled by a power of two (exact, the same bits) so that
-                # volumes and areas neither overflow nor underflow
-                e = int(np.frexp(np.abs(cell).max())[1])
-                cell = np.ldexp(cell, -e)
-                vol = abs(np.linalg.det(cell))
-                areas = np.array([np.linalg.norm(np.cross(cell[(c + 1) % 3], cell[(c + 2) % 3]))
-                                  for c in range(3)])
-                w = np.ldexp(vol / areas, e)
+            w = widths_of(self._full)
             object.__setattr__(self, "_widths", _readonly(w))
         return self._widths
 

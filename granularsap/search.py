@@ -36,10 +36,11 @@ import time
 import numba
 import numpy as np
 
-from . import _memory, periodic
+from . import _memory
 from ._numba import jit, num_threads
 from ._validate import as_coords, as_scalar, as_vector, check_n_threads
 from .cell import Cell
+from .geometry import FrameCell
 from .identity import PairIdentity, as_ids
 from .kernels import grid
 
@@ -136,11 +137,6 @@ def _far_scale(rng, width):
     """The length a frame's coordinate rounding is compared with to call it "far":
     the range, or without one (a zero cutoff) the narrowest periodic width."""
     return rng if rng > 0 else width
-
-
-def _periodic_width(cell, pbc):
-    """Narrowest perpendicular width of the periodic axes (inf if none)."""
-    return float(periodic.perpendicular_widths(cell)[pbc].min()) if pbc.any() else math.inf
 
 
 def _exp2(v):
@@ -318,62 +314,6 @@ def _exact_bound(rad, skin, strict):
     return True, _square_bound(float(rad[0]) + float(rad[0]) + skin, strict)
 
 
-def _resolve_cell(box, pbc):
-    """(cell matrix, pbc) of ``box`` and ``pbc``: the Cell's full matrix (zero rows of
-    open axes completed), or None for open boundaries."""
-    if box is None:
-        if pbc is not None and periodic.as_pbc(pbc).any():
-            raise ValueError("pbc asks for periodic axes but box is None; give the cell")
-        return None, np.zeros(3, bool)
-    cell = Cell.coerce(box, pbc=pbc, name="box")
-    if cell is None or not cell.any_periodic:
-        return None, np.zeros(3, bool)
-    open_axes = ~cell.pbc
-    if open_axes.any() and cell.matrix[open_axes].any():
-        # an open axis's vector only sets a frame of reference: replaced by one
-        # normal to the periodic vectors, so that a tilt towards it (a LAMMPS
-        # "p p s" box with xz, yz) cannot narrow the periodic widths
-        matrix = cell.matrix.copy()
-        matrix[open_axes] = 0.0
-        cell = Cell(matrix, cell.pbc)
-    full = np.array(cell.full_matrix, dtype=np.float64)
-    if open_axes.any():
-        # the unit vectors that complete open axes, scaled by a power of two (exact)
-        # to the size of the periodic ones: fractional coordinates of a cell 1e100
-        # wide must not mix with real coordinates along the open axes
-        size = np.abs(full[~open_axes]).max()
-        full[open_axes] = np.ldexp(full[open_axes], int(np.frexp(size)[1]))
-    return full, np.array(cell.pbc, dtype=bool)
-
-
-class _CellState:
-    """A resolved cell and what every frame derives from it (kept between frames
-    while the same cell comes back)."""
-
-    __slots__ = ("cell", "pbc", "cell_k", "diag", "hinv", "widths", "key", "narrowest",
-                 "magnitude", "fine", "min_periodic_width", "det", "all_periodic")
-
-    def __init__(self, cell, pbc):
-        self.cell, self.pbc = cell, pbc
-        self.all_periodic = bool(pbc.all())
-        cell_k = cell if cell is not None else np.eye(3)
-        self.cell_k = cell_k
-        self.diag = not np.any(cell_k - np.diag(np.diag(cell_k)))
-        self.hinv = np.ascontiguousarray(np.linalg.inv(cell_k)) if not self.diag else np.eye(3)
-        self.widths = periodic.perpendicular_widths(cell_k)
-        self.key = cell_k.tobytes() + pbc.tobytes()
-        axes = np.flatnonzero(pbc)
-        self.narrowest = [int(c) for c in axes[np.argsort(self.widths[axes], kind="stable")][:1]]
-        self.magnitude = float(np.abs(cell).max()) if cell is not None else 0.0
-        #: the smallest nonzero |entry| of the cell (inf for open boundaries)
-        self.fine = _magnitudes(cell)[1] if cell is not None else math.inf
-        self.min_periodic_width = float(self.widths[pbc].min()) if pbc.any() else math.inf
-        with np.errstate(over="ignore", under="ignore"):
-            # a cell beyond 2**340 wide has no finite volume (searches then run on
-            # scaled coordinates, whose volume is taken again); it is only a cost figure
-            self.det = abs(float(np.linalg.det(cell_k)))
-
-
 class _Search:
     """What NeighborSearch and ContactSearch share: state, rebuilds, outputs."""
 
@@ -441,9 +381,6 @@ class _Search:
         self._n = -1
         self._out_cap = 0
         self._perm = None
-        #: columns per pair range (1: columns one range wide, a 3 x 3 stencil; two
-        #: per range test fewer candidates but visit 13 columns instead of 5)
-        self._split = 1
         #: two column levels for widely spread radii (direct frames): True chooses
         #: by cost, False never, a radius forces that split
         self._levels = True
@@ -541,7 +478,7 @@ class _Search:
         t_start = time.perf_counter()
         scan, self._scan = self._scan, None
         cs = self._cell_state(box, pbc)
-        cell, pbc_arr = cs.cell, cs.pbc
+        cell = cs.cell
         n = len(positions)
         minimum = self.periodic_images == "minimum"
         rmax = (float(rad.max()) if scan is None else scan[4]) if n else 0.0
@@ -587,8 +524,8 @@ class _Search:
                 rmax *= scale
                 reach_max *= scale
                 if cell is not None:
-                    cell = cell * scale
-                    cs = _CellState(cell, pbc_arr)
+                    cs = cs.scaled(scale)
+                    cell = cs.cell
         self._scale = scale
         self._margin = self.rebuild_margin * scale
         # what the scan knows of the radii holds for the frame's radii when unscaled
@@ -619,7 +556,7 @@ class _Search:
         ``n_threads`` below ``_PARALLEL_MIN``), or too few particles for a second
         chunk of parallel work."""
         if not (0 < n <= self._small_max and self._margin == 0.0 and minimum
-                and self.path != "sweep" and self._levels is True and self._split == 1
+                and self.path != "sweep" and self._levels is True
                 and not self._far):
             return False
         one = self.n_threads == 1 or (self.n_threads is None and n < _PARALLEL_MIN)
@@ -645,7 +582,7 @@ class _Search:
         last = self._cell_memo
         if key is not None and last is not None and last[0][0] is key[0] and last[0][1:] == key[1:]:
             return last[1]
-        state = _CellState(*_resolve_cell(box, pbc))
+        state = FrameCell.of(box, pbc)
         self._cell_memo = None if key is None else (key, state)
         return state
 
@@ -653,7 +590,7 @@ class _Search:
              threads, t_start, scale):
         self._frames += 1
         cell, pbc = cs.cell, cs.pbc
-        cell_k, diag, hinv = cs.cell_k, cs.diag, cs.hinv
+        cell_k, diag, hinv = cs.matrix, cs.diag, cs.hinv
         # the given positions (scaled: exact) and the frame's largest range, for
         # the band of the agreed arithmetic (grid.band)
         self._xg = positions
@@ -703,8 +640,8 @@ class _Search:
             if self._takes_small(n, minimum):
                 tested = self._small(positions, rad, skin, cs, labels, n, rmax, key, times)
             if tested is None:
-                tested = self._build(positions, rad, skin, cell_k, hinv, diag, pbc, labels,
-                                     n, rmax, reach_max, minimum, key, times)
+                tested = self._build(positions, rad, skin, cs, labels, n, rmax, reach_max,
+                                     minimum, key, times)
             self._rebuilds += 1
         t0 = time.perf_counter()
         total = self._direct_total if self._direct_done else self._narrow(skin, cell_k, diag)
@@ -777,7 +714,7 @@ class _Search:
             else:
                 # a separation far below the cell widths: the shift is the nearest
                 # lattice vector
-                h = cs.hinv if not cs.diag else np.diag(1.0 / np.diag(cs.cell_k))
+                h = cs.hinv if not cs.diag else np.diag(1.0 / np.diag(cs.matrix))
                 frac = v[:, 0:1] * h[0] + v[:, 1:2] * h[1] + v[:, 2:3] * h[2]
                 shift = np.where(cs.pbc, -np.rint(frac), 0.0).astype(np.int64)
             for c in range(3):
@@ -796,7 +733,7 @@ class _Search:
         arithmetic's re-test band for the squared bound ``x2``."""
         cs = self._cs_now
         wext, kmax = self._wk if wk is None else wk
-        return grid.frame_band(float(wext), int(kmax), cs.cell_k, cs.pbc, cs.widths,
+        return grid.frame_band(float(wext), int(kmax), cs.matrix, cs.pbc, cs.widths,
                                self._reach_max + self._margin, self._reach_max, x2)
 
     def _raise_bad(self, bad):
@@ -807,9 +744,10 @@ class _Search:
                 "periodic axis: wrapping it into the cell would keep no significant digit. "
                 "Give coordinates within 2**52 cell lengths of the cell")
 
-    def _build(self, positions, rad, skin, cell, hinv, diag, pbc, labels, n, rmax,
-               reach_max, minimum, key, times):
+    def _build(self, positions, rad, skin, cs, labels, n, rmax, reach_max, minimum, key,
+               times):
         t0 = time.perf_counter()
+        cell, hinv, diag, pbc = cs.matrix, cs.hinv, cs.diag, cs.pbc
         self._key = key
         self._rad = rad.copy()
         self._rad_version += 1
@@ -827,7 +765,7 @@ class _Search:
         self._raise_bad(bad)
         t, w = self._t, self._w
         rng = reach_max + self._margin
-        far = bool(_GUARD * extent > _far_scale(rng, _periodic_width(cell, pbc)) * _FAR
+        far = bool(_GUARD * extent > _far_scale(rng, cs.min_periodic_width) * _FAR
                    and not pbc.all() and (diag or not pbc.any()))
         self._far_ext = None
         if far:
@@ -841,7 +779,7 @@ class _Search:
             extent = 2.0 * max((abs(float(cell[c, c])) for c in range(3) if pbc[c]),
                                default=0.0)
             self._far_ext = extent
-        widths = periodic.perpendicular_widths(cell)
+        widths = cs.widths
         self._wk = (extent, kmax)
         # every superset holds the band of the agreed arithmetic (grid.band); a
         # Verlet list the band of later frames too, up to twice the wrap shifts
@@ -868,7 +806,7 @@ class _Search:
         r_small = None
         with np.errstate(over="ignore", under="ignore"):
             # a cost figure only (spans up to 2**1001: the volume may be inf or 0)
-            volume = float(np.prod(span)) * abs(float(np.linalg.det(cell)))
+            volume = float(np.prod(span)) * cs.det
         if self._margin == 0.0 and minimum and self._levels is not False:
             if self._levels is True:
                 memo = getattr(self, "_split_memo", None)
@@ -885,16 +823,11 @@ class _Search:
         delta = bin_range / widths
         delta_big = (2.0 * rmax + reach + guard) / widths
         nb = [1, 1]
-        split = self._split
         for c in range(2):
             if span[c] > 0:
                 with np.errstate(over="ignore", divide="ignore"):
-                    ratio = (split * span[c] / delta[c] if delta[c] > 0
-                             else math.inf)
+                    ratio = span[c] / delta[c] if delta[c] > 0 else math.inf
                 nb[c] = int(max(1.0, math.floor(min(ratio, float(_MAX_BINS)))))
-        if split > 1 and n < 4 * nb[0] * nb[1]:
-            # sparse: columns of one range hold few particles already
-            nb = [max(1, v // split) for v in nb]
         while nb[0] * nb[1] > max(1, n) and max(nb) > 1:
             c = 0 if nb[0] >= nb[1] else 1
             nb[c] = max(1, nb[c] // 2)
@@ -944,7 +877,7 @@ class _Search:
         # refused before any pair is searched: the plan's columns bound the pairs
         # at once; only a frame they do not show to fit takes the full bound
         with np.errstate(over="ignore", invalid="ignore"):  # spans up to 2**1001
-            _memory.check_pair_memory(self, t, cell, pbc, 2.0 * float(rad.min()) + skin,
+            _memory.check_pair_memory(self, t, cs, 2.0 * float(rad.min()) + skin,
                                       labels,
                                       columns=(start, nb0, nb1, layers_big[0], layers_big[1]))
         self._kern.sort_columns(start, ncol, perm, t, 2, fresh)
@@ -1002,7 +935,7 @@ class _Search:
         inv_w2 = 1.0 / widths[2]
         if path == "sweep":
             self._r_small = None
-            return self._sweep_build(cell, pbc, minimum, reach, use_label, n, times)
+            return self._sweep_build(cs, minimum, reach, use_label, n, times)
         geometry = (chunk_cols, start, nb0, nb1, pbc, tz, xs, ys, zs,
                     self._rs, self._ls, use_label, cell)
         big = (self._rs > r_small).view(np.uint8) if r_small is not None else _NO_BIG
@@ -1077,7 +1010,7 @@ class _Search:
             # both passes in one call while the records and the pairs fit the kept
             # buffers (this call's output set as the last call of it left it)
             bad, total, tested, need, nb0, nb1, exact, done = grid.small_frame(
-                positions, rad, labels if use_label else self._ls, use_label, cs.cell_k,
+                positions, rad, labels if use_label else self._ls, use_label, cs.matrix,
                 cs.hinv, cs.diag, cs.pbc, cs.widths, skin, strict, uniform, x2, _GUARD,
                 r_small or 0.0, fresh, prev, self._t, self._k, self._w, self._col, perm, start,
                 cursor, self._tz, self._xs, self._ys, self._zs, self._rs, self._ls, big,
@@ -1098,7 +1031,7 @@ class _Search:
         self._alloc_output(total)
         if not done:  # the pairs of the records just made, into the grown outputs
             grid.small_frame(
-                positions, rad, labels if use_label else self._ls, use_label, cs.cell_k,
+                positions, rad, labels if use_label else self._ls, use_label, cs.matrix,
                 cs.hinv, cs.diag, cs.pbc, cs.widths, skin, strict, uniform, x2, _GUARD,
                 r_small or 0.0, fresh, prev, self._t, self._k, self._w, self._col, perm, start,
                 cursor, self._tz, self._xs, self._ys, self._zs, self._rs, self._ls, big,
@@ -1133,7 +1066,7 @@ class _Search:
         if not cs.all_periodic:
             open_axes = ~cs.pbc
             if cs.diag:
-                frac = positions[:, open_axes] / np.diag(cs.cell_k)[open_axes]
+                frac = positions[:, open_axes] / np.diag(cs.matrix)[open_axes]
             else:  # (a sum of products, not a BLAS product: no BLAS threads)
                 h = cs.hinv[:, open_axes]
                 frac = (positions[:, 0:1] * h[0] + positions[:, 1:2] * h[1]
@@ -1254,7 +1187,7 @@ class _Search:
             return "sweep", f"{figures}: above {limits}, the paper's sweep"
         return "columns", f"{figures}: not above {limits}, the column sweep"
 
-    def _sweep_build(self, cell, pbc, minimum, reach, use_label, n, times):
+    def _sweep_build(self, cs, minimum, reach, use_label, n, times):
         """The Verlet list from the paper's Sweep and Prune over bounding cubes."""
         from .sweep_candidates import SweepCandidates
 
@@ -1263,8 +1196,8 @@ class _Search:
             self._sweeper = SweepCandidates(n_threads=self.n_threads)
         half = self._rs + 0.5 * reach
         self._rows_list = True
-        vstart, vstop, vb, vs = self._sweeper.build(
-            self._ws, half, cell if pbc.any() else None, pbc, not minimum, spheres=True,
+        vstart, vstop, vb, vs = self._sweeper.build_resolved(
+            self._ws, half, cs, not minimum, spheres=True,
             labels=self._ls if use_label else None)
         self._vstart[:] = vstart
         self._vstop[:] = vstop
@@ -1385,9 +1318,9 @@ class _Search:
     def _track(self, total):
         """Contact identity of this call's pairs (granularsap.identity)."""
         t0 = time.perf_counter()
-        ids, positions, box, pbc, labels, rad, skin = self._id_call
-        # the cell as given (unscaled), from the memo this call's frame kept
-        cs = self._cell_state(box, pbc)
+        ids, positions, labels, rad, skin = self._id_call
+        # the cell as given (unscaled), resolved once by this call's frame
+        cs = self._given_cs
         cell, pbc_arr = cs.cell, cs.pbc
         shifts = self._out_s[:total] if self._tracker.shifts else None
         # rows re-tested from a kept list carry their entry in it: two calls on one
@@ -1410,7 +1343,7 @@ class _Search:
     def _run_tracked(self, positions, rad, skin, box, pbc, labels, copy, ids):
         """One call through ``_frame``, its outputs in this call's buffer set, and
         the identity of its pairs."""
-        self._id_call = (ids, positions, box, pbc, labels, rad, skin)
+        self._id_call = (ids, positions, labels, rad, skin)
         self._identity_seconds = None
         self._outputs_begin()
         result = self._frame(positions, rad, skin, box, pbc, labels, copy)

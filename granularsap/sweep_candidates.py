@@ -226,6 +226,29 @@ class SweepCandidates:
             return self._build(ws, half, cell, hinv, pbc, self_images, bool(spheres), labels,
                                use_labels, n, t_start)
 
+    def build_resolved(self, ws, half, frame_cell, self_images, *, spheres=False,
+                       labels=None):
+        """:meth:`build` for the engine, which holds its inputs checked already.
+
+        ``ws`` and ``half`` are contiguous float64 arrays, ``labels`` None or
+        int64, and ``frame_cell`` the frame's :class:`granularsap.geometry.FrameCell`
+        (validated once, when the search resolved the box): nothing is validated
+        or converted again.
+        """
+        t_start = time.perf_counter()
+        fc = frame_cell
+        if fc.any_periodic:
+            cell = fc.matrix
+            hinv = fc.hinv if not fc.diag else np.linalg.inv(cell)
+        else:
+            cell = hinv = np.eye(3)
+        use_labels = labels is not None
+        if not use_labels:
+            labels = np.zeros(0, np.int64)
+        with num_threads(self.n_threads):
+            return self._build(ws, half, cell, hinv, fc.pbc, bool(self_images), bool(spheres),
+                               labels, use_labels, len(ws), t_start)
+
     def _build(self, ws, half, cell, hinv, pbc, self_images, spheres, labels, use_labels, n,
                t_start):
         t0 = time.perf_counter()

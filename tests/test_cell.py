@@ -446,25 +446,6 @@ class TestFarOutsideTheCell:
         got = _within(60, granularsap.sphere_contacts, pos, [0.6, 0.6, 0.6], box=box)
         assert np.array_equal(got, granularsap.sphere_contacts(near, [0.6] * 3, box=box))
 
-    def test_ghost_images_of_far_positions_are_bounded(self):
-        cell = np.diag([1e6, 1e6, 1e6])
-        pos = np.array([[1e20, 0.0, 0.0], [1.0, 0.0, 0.0]])
-        wrapped, _ = pc.wrap(pos, cell)
-        owner, shift = _within(30, pc.ghost_images, wrapped, cell, np.ones(3, bool),
-                               np.full(2, 2.0))
-        # both particles sit at a corner of the cell: 7 images each
-        assert sorted(owner.tolist()) == [0] * 7 + [1] * 7
-        with pytest.raises(ValueError, match=r"wrapped positions must lie in the cell along "
-                                             r"periodic axes \(wrap them first\)"):
-            _within(30, pc.ghost_images, np.array([[1e300, 0, 0]]), np.eye(3), np.ones(3, bool),
-                    np.ones(1))
-
-    def test_huge_reach_is_refused_not_allocated(self):
-        with pytest.raises(ValueError, match=r"reach 100000.0 needs .* ghost images, more than "
-                                             r"the supported"):
-            _within(30, pc.ghost_images, np.array([[0.5, 0.5, 0.5]]), np.eye(3),
-                    np.ones(3, bool), np.array([1e5]))
-
     @pytest.mark.parametrize("x", [1e20, 1e300])
     def test_beyond_the_representable_range_is_a_clear_error(self, x):
         pos = np.array([[x, 0.0, 0.0], [1.0, 0.0, 0.0]])
@@ -543,13 +524,13 @@ class TestConsumers:
             fr = Frame(index=0, positions=rng.uniform(-spread, spread, (20, 3)),
                        ids=np.arange(20), cell=m, pbc=np.array([True, True, False]),
                        origin=np.array([1.0, 0.0, -2.0]))
-            cells.append(engine_cell(fr, 2.0))
+            cells.append(engine_cell(fr))
         assert cells[0] == cells[1] and cells[0].pbc.tolist() == [True, True, False]
         assert np.array_equal(cells[0].matrix[:2], m[:2])
         open_c = cells[0].full_matrix[2]  # normal to the periodic vectors, unit length
         assert abs(open_c @ m[0]) < 1e-12 and abs(open_c @ m[1]) < 1e-12
-        assert engine_cell(Frame(index=0, positions=np.zeros((0, 3)), ids=np.zeros(0, int)),
-                           1.0) is None
+        assert engine_cell(Frame(index=0, positions=np.zeros((0, 3)),
+                                 ids=np.zeros(0, int))) is None
 
 
 def test_docs_examples_run():

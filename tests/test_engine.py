@@ -9,9 +9,17 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from granularsap import SweepAndPrune, box_overlaps
-from granularsap.api import _box_overlaps_path
 
 from .oracles import brute_box_overlaps, sort_pairs
+
+
+def _box_overlaps_path(lower, upper, *, path=None, n_threads=None, partitions=None,
+                       axes="auto"):
+    """``box_overlaps`` with the algorithm path forced, and a number of partitions
+    independent of the thread count (the engine's test override)."""
+    engine = SweepAndPrune(axes=axes, n_threads=n_threads, path=path or "auto")
+    engine._partitions = partitions
+    return engine.update(lower, upper)
 
 PATHS = [("sequential", 1, None), ("parallel", 1, 3), ("parallel", 2, 2), ("parallel", 2, 5)]
 

@@ -327,7 +327,7 @@ class TestAseAndMDAnalysisFiles:
         np.testing.assert_array_equal(fr.pbc, [True, True, False])
         assert fr.box is None and fr.cell is not None
         radii = np.full(60, 0.6)
-        got = granularsap.sphere_contacts(fr.positions, radii, box=engine_cell(fr, 1.2))
+        got = granularsap.sphere_contacts(fr.positions, radii, box=engine_cell(fr))
         want, _ = brute_image_pairs(fr.positions, 0.0, cell=np.diag([6.0, 6.0, 1.0]),
                                     pbc=(True, True, False), radii=radii)
         np.testing.assert_array_equal(sort_pairs(np.sort(got, axis=1)), sort_pairs(want))
@@ -397,7 +397,7 @@ class TestCells:
         pos = rng.uniform(0, 1, (80, 3)) @ cell
         radii = rng.uniform(0.3, 0.8, 80)
         fr = Frame(index=0, positions=pos, ids=np.arange(80), cell=cell, pbc=np.array(pbc))
-        box = engine_cell(fr, 2 * radii.max())
+        box = engine_cell(fr)
         got = granularsap.sphere_contacts(pos, radii, box=box)
         want, _ = brute_image_pairs(pos, 0.0, cell=cell, pbc=pbc, radii=radii)
         np.testing.assert_array_equal(sort_pairs(np.sort(got, axis=1)), sort_pairs(want))

@@ -128,7 +128,7 @@ class TestColumnBound:
             rad[rng.random(n) < 0.9] = 0.05
         seen = []
 
-        def spy(search, t, cell, pbc_, reach, labels=None, columns=None):
+        def spy(search, t, frame_cell, reach, labels=None, columns=None):
             seen.append(columns)
 
         box = None if matrix is None else granularsap.Cell(matrix, pbc)

@@ -1,8 +1,6 @@
-"""Cells, wrapping, perpendicular widths and ghost images (granularsap.periodic)."""
+"""Cells, wrapping and perpendicular widths (granularsap.periodic)."""
 
 from __future__ import annotations
-
-import itertools
 
 import numpy as np
 import pytest
@@ -123,36 +121,6 @@ class TestWidthsAndWrap:
     def test_points_on_faces_wrap_to_zero(self):
         wrapped, shifts = pc.wrap(np.array([[10.0, 0.0, 20.0]]), np.diag([10.0, 10.0, 10.0]))
         assert np.array_equal(wrapped, [[0.0, 0.0, 0.0]]) and shifts.tolist() == [[1, 0, 2]]
-
-
-class TestGhostImages:
-    @pytest.mark.parametrize("dims", DIMS)
-    @pytest.mark.parametrize("reach", [0.5, 3.0, 12.0])
-    def test_every_image_within_reach_of_the_cell_is_a_ghost(self, dims, reach):
-        rng = np.random.default_rng(1)
-        cell = pc.cell_from_dimensions(dims)
-        wrapped, _ = pc.wrap(rng.uniform(0, 10, (60, 3)), cell)
-        owner, shift = pc.ghost_images(wrapped, cell, np.ones(3, bool), np.full(60, reach))
-        got = {(int(o), *map(int, t)) for o, t in zip(owner, shift, strict=True)}
-        widths = pc.perpendicular_widths(cell)
-        s = pc.fractional(wrapped, cell)
-        m = int(np.ceil(reach / widths.min())) + 1
-        for t in itertools.product(range(-m, m + 1), repeat=3):
-            if t == (0, 0, 0):
-                continue
-            st_ = s + np.asarray(t)
-            # distance of each image to the cell, measured face by face
-            out = np.maximum(np.maximum(-st_, st_ - 1.0), 0.0) * widths
-            near = np.all(out <= reach * (1 - 1e-9), axis=1)
-            for i in np.flatnonzero(near):
-                assert (int(i), *t) in got
-
-    def test_open_axes_have_no_ghosts(self):
-        wrapped = np.array([[0.1, 0.1, 0.1]])
-        owner, shift = pc.ghost_images(wrapped, np.eye(3) * 5, np.array([True, False, False]),
-                                       np.array([1.0]))
-        # near the lower x face: only the image one cell up along x is in reach
-        assert shift.tolist() == [[1, 0, 0]] and owner.tolist() == [0]
 
 
 @settings(max_examples=30, deadline=None)

@@ -187,7 +187,7 @@ class TestOutputs:
         assert got == want
 
 
-class TestHostileInput:
+class TestExtremeMagnitudesAndBadInput:
     @pytest.mark.parametrize("scale", [1e154, 1e200, 1e300, 1e-200, 1e-300])
     def test_huge_and_tiny_coordinates_decide_every_pair(self, scale):
         rng = np.random.default_rng(11)

@@ -89,7 +89,7 @@ class ContactParams:
         return d
 
 
-def engine_cell(frame: Frame, reach: float | None = None):
+def engine_cell(frame: Frame):
     """The cell to give the engine: None (open), or a :class:`granularsap.Cell`.
 
     The frame's cell, pbc and origin.  Non-periodic directions of a partly
@@ -99,16 +99,14 @@ def engine_cell(frame: Frame, reach: float | None = None):
     rows), so that a tilt towards an open axis cannot narrow the periodic
     widths.  The result depends on the frame's box only (not on where the
     particles are), so a stateful search sees the same cell frame after frame.
-    ``reach`` is accepted for compatibility and not needed.
     """
     from ..cell import Cell
+    from ..geometry import open_axes_normal
 
     if frame.cell is None or not np.any(frame.pbc):
         return None
     pbc = np.asarray(frame.pbc, dtype=bool)
-    matrix = np.array(frame.cell, dtype=np.float64)
-    matrix[~pbc] = 0.0
-    return Cell(matrix, pbc, origin=frame.origin)
+    return Cell(open_axes_normal(frame.cell, pbc), pbc, origin=frame.origin)
 
 
 def _radii(frame: Frame, params: ContactParams):
@@ -181,13 +179,11 @@ class FrameSearch:
         params = self.params
         pos = frame.positions
         if params.cutoff is not None:
-            out = self.search.update(pos, engine_cell(frame, params.cutoff))
+            out = self.search.update(pos, engine_cell(frame))
         else:
             radii = frame.radius if frame.radius is not None else _radii(frame, params)
-            reach = 2.0 * float(radii.max()) + params.skin if len(radii) else 0.0
-            box = engine_cell(frame, reach)
             labels = frame.molecule if params.clumps else None
-            out = self.search.update(pos, radii, box, clump_ids=labels)
+            out = self.search.update(pos, radii, engine_cell(frame), clump_ids=labels)
         pairs, distances = out if params.distances else (out, None)
         clump_pairs = None
         if params.clumps:
