@@ -153,16 +153,26 @@ class TestPeersAgreeWithDefinition:
         assert got.dtype == np.int64 and np.all(got[:, 0] < got[:, 1])
         assert harness.canonical(got, wl.n) == harness.canonical(brute_pairs(wl), wl.n)
 
-    @pytest.mark.parametrize("peer_name", ["granularsap-steady", "vesin-verlet"])
+    @pytest.mark.parametrize("peer_name", ["granularsap-steady", "granularsap-identity",
+                                           "vesin-verlet"])
     def test_stateful_peer_over_a_trajectory(self, peer_name):
         wl = workloads.trajectory(300, n_frames=4, step=0.3)
         peer = peers.PEERS[peer_name]()
         if peer.missing():
             pytest.skip(f"{peer_name} not available: {peer.missing()}")
         peer.setup(wl, 2)
+        last = None
         for f in range(4):
             got = peer.run(f)
             assert harness.canonical(got, wl.n) == harness.canonical(brute_pairs(wl, f), wl.n)
+            if peer_name == "granularsap-identity":
+                # each pair's previous row is the same pair in the last frame's result
+                rows = peer.engine.previous_rows
+                want = ([-1] * len(got) if last is None else
+                        [last.get((int(a), int(b)), -1) for a, b in got])
+                assert rows.tolist() == want
+                assert f == 0 or 0 < (rows >= 0).sum() < len(got)  # pairs kept, pairs new
+                last = {(int(a), int(b)): r for r, (a, b) in enumerate(got)}
 
 
 class TestAgreement:

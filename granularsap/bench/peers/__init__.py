@@ -35,7 +35,12 @@ from .base import (  # noqa: F401
 )
 from .celllist import NumbaCellList  # noqa: F401
 from .lammps import REBUILD_STEPS, LammpsPeer, LammpsRebuild, LammpsRun0, log_sections  # noqa: F401
-from .ours import GranularSAP, GranularSAPSteady, GranularSAPVerlet  # noqa: F401
+from .ours import (  # noqa: F401
+    GranularSAP,
+    GranularSAPIdentity,
+    GranularSAPSteady,
+    GranularSAPVerlet,
+)
 from .python import (  # noqa: F401
     ASEPeer,
     FreudAABB,
@@ -53,14 +58,15 @@ from .python import (  # noqa: F401
 
 #: every peer the bench command knows, in report order
 PEERS = {cls.name: cls for cls in (
-    GranularSAP, GranularSAPSteady, GranularSAPVerlet, MDANSGrid, MDAPKDTree, ScipyCKDTree, ASEPeer,
+    GranularSAP, GranularSAPSteady, GranularSAPVerlet, GranularSAPIdentity, MDANSGrid, MDAPKDTree,
+    ScipyCKDTree, ASEPeer,
     MatscipyPeer, VesinPeer, VesinVerlet, FreudAABB, FreudLinkCell, LammpsPeer, LammpsRebuild,
     LammpsRun0, NumbaCellList,
 )}
 
 
 #: names of the granularsap adapters (the reference of the ratios)
-GRANULARSAP = ("granularsap", "granularsap-steady", "granularsap-verlet")
+GRANULARSAP = ("granularsap", "granularsap-steady", "granularsap-verlet", "granularsap-identity")
 
 
 def make_peers(names=None):

@@ -1,4 +1,5 @@
-"""granularsap itself as a peer: one-shot, kept engine (steady state), kept Verlet list."""
+"""granularsap itself as a peer: one-shot, kept engine (steady state), kept Verlet list,
+kept engine with contact identity."""
 
 from __future__ import annotations
 
@@ -48,6 +49,9 @@ class GranularSAPSteady(Peer):
     #: Verlet margin, as a fraction of the workload's search radius
     margin_fraction = 0.0
 
+    #: contact identity (``identity=True``): the previous-row map of every call
+    identity = False
+
     def setup(self, workload, n_threads):
         import granularsap
 
@@ -58,10 +62,11 @@ class GranularSAPSteady(Peer):
             self.engine = granularsap.SweepAndPrune(n_threads=n_threads)
         elif workload.kind == "contacts":
             self.engine = granularsap.ContactSearch(rebuild_margin=margin, n_threads=n_threads,
-                                                    quantities="Pd")
+                                                    quantities="Pd", identity=self.identity)
         else:
             self.engine = granularsap.NeighborSearch(workload.cutoff, rebuild_margin=margin,
-                                                     quantities="Pd", n_threads=n_threads)
+                                                     quantities="Pd", n_threads=n_threads,
+                                                     identity=self.identity)
         self.rebuilds = 0
 
     def last_stats(self):
@@ -104,4 +109,23 @@ class GranularSAPVerlet(GranularSAPSteady):
         if why is None and len(workload.frames) < 2:
             # repeating one frame would only ever re-test a kept list
             return "Verlet caching is for trajectories only"
+        return why
+
+
+class GranularSAPIdentity(GranularSAPSteady):
+    """``granularsap-steady`` with contact identity: every frame also maps each pair
+    to its row in the previous frame's result (``previous_rows``, -1 for a new
+    pair) and lists the rows that ended, what a DEM loop with history asks for."""
+
+    name = "granularsap-identity"
+    description = "NeighborSearch / ContactSearch kept across frames, identity=True"
+    identity = True
+
+    def unsupported(self, workload):
+        why = super().unsupported(workload)
+        if why is None and workload.kind == "boxes":
+            return "contact identity is for particle searches"
+        if why is None and len(workload.frames) < 2:
+            # repeating one frame, every pair continues itself in step
+            return "contact identity is measured on trajectories only"
         return why
