@@ -45,6 +45,11 @@ def open_axes_normal(matrix, pbc):
     A :class:`Cell` completes zero rows with unit vectors normal to the others
     (``Cell.full_matrix``): given this matrix, the open axes are normal to the
     periodic ones, whatever the box's tilt towards them was.
+
+    >>> open_axes_normal([[4.0, 0, 0], [0, 5.0, 0], [1.0, 2.0, 6.0]], [True, True, False])
+    array([[4., 0., 0.],
+           [0., 5., 0.],
+           [0., 0., 0.]])
     """
     m = np.array(matrix, dtype=np.float64)
     m[~np.asarray(pbc, dtype=bool)] = 0.0

@@ -234,6 +234,16 @@ class SweepCandidates:
         int64, and ``frame_cell`` the frame's :class:`granularsap.geometry.FrameCell`
         (validated once, when the search resolved the box): nothing is validated
         or converted again.
+
+        >>> import numpy as np
+        >>> from granularsap.geometry import FrameCell
+        >>> ws = np.array([[0.5, 5.0, 5.0], [9.5, 5.0, 5.0], [5.0, 5.0, 5.0]])
+        >>> fc = FrameCell.of(10.0 * np.eye(3), [True, False, False])
+        >>> vstart, vstop, vb, vs = SweepCandidates().build_resolved(ws, np.full(3, 0.6), fc,
+        ...                                                          False)
+        >>> [(p, int(vb[e]), decode_shift(vs[e])) for p in range(3)
+        ...  for e in range(vstart[p], vstop[p])]
+        [(1, 0, (1, 0, 0))]
         """
         t_start = time.perf_counter()
         fc = frame_cell

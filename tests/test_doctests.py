@@ -10,7 +10,8 @@ import pytest
 MODULES = ["granularsap.search", "granularsap.particles", "granularsap.api", "granularsap.cell",
            "granularsap.inputs", "granularsap.periodic", "granularsap.mda", "granularsap.ase",
            "granularsap.ase_neighborlist", "granularsap.mda_fastns", "granularsap._memory",
-           "granularsap.io._lock", "granularsap.cli.argtypes"]
+           "granularsap.io._lock", "granularsap.cli.argtypes", "granularsap.geometry",
+           "granularsap.sweep_candidates"]
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -51,6 +51,17 @@ class GranularSAPSteady(Peer):
 
     #: contact identity (``identity=True``): the previous-row map of every call
     identity = False
+    #: why a setting skips box workloads, and single frames (None: it runs them)
+    no_boxes = None
+    one_frame = None
+
+    def unsupported(self, workload):
+        why = super().unsupported(workload)
+        if why is None and self.no_boxes and workload.kind == "boxes":
+            return self.no_boxes
+        if why is None and self.one_frame and len(workload.frames) < 2:
+            return self.one_frame
+        return why
 
     def setup(self, workload, n_threads):
         import granularsap
@@ -101,15 +112,9 @@ class GranularSAPVerlet(GranularSAPSteady):
     name = "granularsap-verlet"
     description = "NeighborSearch / ContactSearch with rebuild_margin = 0.1 x range"
     margin_fraction = 0.1
-
-    def unsupported(self, workload):
-        why = super().unsupported(workload)
-        if why is None and workload.kind == "boxes":
-            return "boxes have no Verlet list (SweepAndPrune keeps its sort state instead)"
-        if why is None and len(workload.frames) < 2:
-            # repeating one frame would only ever re-test a kept list
-            return "Verlet caching is for trajectories only"
-        return why
+    no_boxes = "boxes have no Verlet list (SweepAndPrune keeps its sort state instead)"
+    # repeating one frame would only ever re-test a kept list
+    one_frame = "Verlet caching is for trajectories only"
 
 
 class GranularSAPIdentity(GranularSAPSteady):
@@ -120,12 +125,6 @@ class GranularSAPIdentity(GranularSAPSteady):
     name = "granularsap-identity"
     description = "NeighborSearch / ContactSearch kept across frames, identity=True"
     identity = True
-
-    def unsupported(self, workload):
-        why = super().unsupported(workload)
-        if why is None and workload.kind == "boxes":
-            return "contact identity is for particle searches"
-        if why is None and len(workload.frames) < 2:
-            # repeating one frame, every pair continues itself in step
-            return "contact identity is measured on trajectories only"
-        return why
+    no_boxes = "contact identity is for particle searches"
+    # repeating one frame, every pair continues itself in step
+    one_frame = "contact identity is measured on trajectories only"
