@@ -88,17 +88,12 @@ _TINY_D = 2.0 ** -480
 _FAR = 2.0 ** -10
 
 
-@jit
 def _magnitudes(x):
-    """(largest |x|, smallest nonzero |x|) of an array of floats; (0, inf) if none."""
-    hi = 0.0
-    lo = np.inf
-    for v in x.ravel():
-        a = abs(v)
-        hi = a if a > hi else hi
-        if a > 0.0 and a < lo:
-            lo = a
-    return hi, lo
+    """(largest |x|, smallest nonzero |x|) of ``(n, 3)`` positions; (0, inf) if none.
+
+    The frame scan's kernel (one compiled signature for both)."""
+    scan = _scan_frame(np.ascontiguousarray(x, dtype=np.float64), _NO_RADII, _NO_RADII)
+    return scan[1], scan[2]
 
 
 @jit
@@ -122,8 +117,9 @@ def _scan_frame(x, rad, kept):
     ok = True
     rmin = np.inf
     rmax = -np.inf
-    same = kept.shape[0] == n
-    for i in range(n):
+    m = rad.shape[0]  # n, or 0 to scan positions only (_magnitudes)
+    same = kept.shape[0] == m
+    for i in range(m):
         r = rad[i]
         ok = ok & (r >= 0.0) & (r < np.inf)
         rmin = r if r < rmin else rmin
@@ -1618,9 +1614,10 @@ class ContactSearch(_Search):
                 and radii.flags.c_contiguous):
             scan = self._scan_inputs(positions, radii)
         else:
-            positions = as_coords(positions, "positions")
+            # a scalar, a list or another dtype: made (n,) float64 first, then the
+            # same one-pass scan as an array given so
             radii = as_radii(radii, n)
-            scan = None
+            scan = self._scan_inputs(positions, radii)
         labels = None if clump_ids is None else as_labels(clump_ids, n)
         ids = self._check_ids(ids, n)
         self._scan = scan
