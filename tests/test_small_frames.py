@@ -74,6 +74,44 @@ def test_small_frames_equal_the_general_path_and_the_oracle(pts, rad, cell, skin
     np.testing.assert_allclose(d[order], want_d, rtol=1e-12)
 
 
+@settings(max_examples=40, deadline=None)
+@given(pts=st.lists(st.tuples(*[st.integers(-12, 44)] * 3), min_size=16, max_size=120),
+       rad=st.lists(st.integers(1, 6), min_size=120, max_size=120),
+       cell=st.sampled_from(["open", "ortho", "mixed"]), skin=st.sampled_from([0.0, 0.125]),
+       strict=st.booleans())
+def test_dense_polydisperse_columns_equal_the_general_path_and_the_oracle(pts, rad, cell,
+                                                                          skin, strict):
+    # many spheres of unequal radii to a column: four particles share a window
+    # (the superset loop of an orthorhombic cell); quarter-integer coordinates,
+    # some outside the cell (wrapped: the band's re-test), and radii in eighths
+    # make touching spheres exact ties
+    pos = np.asarray(pts, dtype=float).reshape(-1, 3) / 4.0
+    radii = np.asarray(rad[: len(pos)], dtype=float) / 8.0
+    radii[0] = 0.125 if radii[-1] != 0.125 else 0.25  # never one radius for all
+    box, pbc = CELLS[cell]
+    (small, s_stats), (general, _) = _pair(pos, radii, box, pbc, skin=skin,
+                                           include_cutoff=not strict)
+    _same(small, general)
+    assert s_stats["pairs"] == len(small[0])
+    # the agreed arithmetic by brute force: D = (x_j - x_i) + S0 a + S1 b + S2 c,
+    # every shift that can matter (coordinates up to two cells out)
+    i, j = np.triu_indices(len(pos), 1)
+    mat = np.zeros((3, 3)) if box is None else np.asarray(box, dtype=float)
+    per = (False,) * 3 if box is None else ((True,) * 3 if pbc is None else pbc)
+    ks = [range(-3, 4) if per[c] else range(1) for c in range(3)]
+    found = np.zeros(len(i), bool)
+    thr = (radii[i] + radii[j]) + skin
+    for s0 in ks[0]:
+        for s1 in ks[1]:
+            for s2 in ks[2]:
+                dv = (pos[j] - pos[i]) + s0 * mat[0] + s1 * mat[1] + s2 * mat[2]
+                d = np.sqrt(dv[:, 0] * dv[:, 0] + dv[:, 1] * dv[:, 1] + dv[:, 2] * dv[:, 2])
+                found |= (d < thr) if strict else (d <= thr)
+    p = small[0]
+    assert np.array_equal(p[np.lexsort((p[:, 1], p[:, 0]))],
+                          np.stack([i[found], j[found]], axis=1).reshape(-1, 2))
+
+
 @pytest.mark.parametrize("cell", sorted(CELLS))
 @pytest.mark.parametrize("n", [0, 1, 2, 3])
 def test_fewest_particles(cell, n):

@@ -1175,6 +1175,9 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
     tested = 0
     w = 0
     loose = 1.0 + 1e-12
+    # four particles of a column share one window (``_tile4``): the superset loop
+    # of an orthorhombic cell, one level, no labels
+    tiles = diag and not levels and tri is None and fast is None and not use_label
     skin_sup = skin + dtol  # the supersets hold the band
     p2 = pbc[2]
     ztop = float(nz - 1)
@@ -1246,7 +1249,145 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
             bx = s1 * cell[1, 0]
             by = s1 * cell[1, 1]
             bz = s1 * cell[1, 2]
-            for p in range(lo_c, hi_c):
+            pp = lo_c
+            single = 0  # particles left to the one-particle windows below
+            while pp < hi_c:
+                if tiles and single == 0 and pp + 4 <= hi_c:
+                    # four particles against one window, the union of theirs, each
+                    # candidate tested against the four in one pass (the docstring)
+                    rp0 = rs[pp]
+                    rp1 = rs[pp + 1]
+                    rp2 = rs[pp + 2]
+                    rp3 = rs[pp + 3]
+                    a0 = a1 = a2 = a3 = True
+                    if not own:
+                        a0 = not ((g0 * (e0 - ts0[pp]) > (rp0 + rg) * inv_w0)
+                                  | (g1 * (e1 - ts1[pp]) > (rp0 + rg) * inv_w1))
+                        a1 = not ((g0 * (e0 - ts0[pp + 1]) > (rp1 + rg) * inv_w0)
+                                  | (g1 * (e1 - ts1[pp + 1]) > (rp1 + rg) * inv_w1))
+                        a2 = not ((g0 * (e0 - ts0[pp + 2]) > (rp2 + rg) * inv_w0)
+                                  | (g1 * (e1 - ts1[pp + 2]) > (rp2 + rg) * inv_w1))
+                        a3 = not ((g0 * (e0 - ts0[pp + 3]) > (rp3 + rg) * inv_w0)
+                                  | (g1 * (e1 - ts1[pp + 3]) > (rp3 + rg) * inv_w1))
+                        if not (a0 | a1 | a2 | a3):
+                            pp += 4
+                            continue
+                    lo_t = math.inf
+                    hi_t = -math.inf
+                    if a0:
+                        d = (rp0 + rw) * inv_w2
+                        lo_t = min(lo_t, tz[pp] - d)
+                        hi_t = max(hi_t, tz[pp] + d)
+                    if a1:
+                        d = (rp1 + rw) * inv_w2
+                        lo_t = min(lo_t, tz[pp + 1] - d)
+                        hi_t = max(hi_t, tz[pp + 1] + d)
+                    if a2:
+                        d = (rp2 + rw) * inv_w2
+                        lo_t = min(lo_t, tz[pp + 2] - d)
+                        hi_t = max(hi_t, tz[pp + 2] + d)
+                    if a3:
+                        d = (rp3 + rw) * inv_w2
+                        lo_t = min(lo_t, tz[pp + 3] - d)
+                        hi_t = max(hi_t, tz[pp + 3] + d)
+                    # one shift along a periodic sweep axis: every window inside
+                    # [0, 1] (the own column looks forward only)
+                    fits = (not p2) or ((hi_t < 1.0) & (own | (lo_t > 0.0)))
+                    qa = 0
+                    m = 0
+                    if fits:
+                        qa = zidx[zrow + _zbucket(lo_t, zlo, inv_bz, ztop)]
+                        qb = zidx[zrow + _zbucket(hi_t, zlo, inv_bz, ztop) + 1]
+                        if own:
+                            qa = max(qa, pp + 1)
+                        m = max(qb - qa, 0)
+                        fits = m <= 64
+                    if fits:
+                        xp0 = xs[pp]
+                        yp0 = ys[pp]
+                        zp0 = zs[pp]
+                        xp1 = xs[pp + 1]
+                        yp1 = ys[pp + 1]
+                        zp1 = zs[pp + 1]
+                        xp2 = xs[pp + 2]
+                        yp2 = ys[pp + 2]
+                        zp2 = zs[pp + 2]
+                        xp3 = xs[pp + 3]
+                        yp3 = ys[pp + 3]
+                        zp3 = zs[pp + 3]
+                        w0 = w1 = w2 = w3 = np.uint64(0)
+                        for t in range(m):
+                            # the superset test of the loop below, per particle
+                            u = qa + t
+                            rq = rs[u] + skin_sup
+                            sh = np.uint64(t)
+                            dx = (xs[u] - xp0) + ax
+                            dy = (ys[u] - yp0) + by
+                            dz = zs[u] - zp0
+                            th = rp0 + rq
+                            w0 |= np.uint64(dx * dx + dy * dy + dz * dz <= th * th * loose) << sh
+                            dx = (xs[u] - xp1) + ax
+                            dy = (ys[u] - yp1) + by
+                            dz = zs[u] - zp1
+                            th = rp1 + rq
+                            w1 |= np.uint64(dx * dx + dy * dy + dz * dz <= th * th * loose) << sh
+                            dx = (xs[u] - xp2) + ax
+                            dy = (ys[u] - yp2) + by
+                            dz = zs[u] - zp2
+                            th = rp2 + rq
+                            w2 |= np.uint64(dx * dx + dy * dy + dz * dz <= th * th * loose) << sh
+                            dx = (xs[u] - xp3) + ax
+                            dy = (ys[u] - yp3) + by
+                            dz = zs[u] - zp3
+                            th = rp3 + rq
+                            w3 |= np.uint64(dx * dx + dy * dy + dz * dz <= th * th * loose) << sh
+                        for lane in range(4):
+                            if not (a0 if lane == 0 else (a1 if lane == 1 else
+                                                          (a2 if lane == 2 else a3))):
+                                continue
+                            tested += m
+                            word = w0 if lane == 0 else (w1 if lane == 1 else
+                                                         (w2 if lane == 2 else w3))
+                            p = pp + lane
+                            if qa <= p < qa + m:
+                                # not itself (an image of itself through ``s``), and
+                                # in its own column none before it (they find it)
+                                word &= ~(np.uint64(1) << np.uint64(p - qa))
+                                if own:
+                                    word &= ~((np.uint64(1) << np.uint64(p + 1 - qa))
+                                              - np.uint64(1))
+                            rp = rs[p]
+                            xp = xs[p]
+                            yp = ys[p]
+                            zp = zs[p]
+                            bits = word
+                            while bits:
+                                t = cttz(bits)
+                                bits &= bits - np.uint64(1)
+                                q2 = qa + np.int64(t)
+                                ok, d2, dx, dy, dz = _pair_test(
+                                    q2, p, xs, ys, zs, ls, False, True, ax, ay, az, bx, by,
+                                    bz, 0.0, 0.0, 0.0, xp, yp, zp, 0, False)
+                                ok = ok and _decide(d2, rp + rs[q2] + skin, strict, False,
+                                                    x2, in2, out2, dtol, xg, perm, kp, p, q2,
+                                                    cell, s0, s1, 0)
+                                if not ok:
+                                    word &= ~(np.uint64(1) << t)
+                            if word:
+                                if w < wcap:
+                                    words[w] = word
+                                    rec_p[w] = p
+                                    rec_q[w] = qa
+                                    rec_s[w] = encode(s0, s1, 0)
+                                w += 1
+                                cnt += np.int64(ctpop(word))
+                        pp += 4
+                        continue
+                    single = 4  # the four one by one (the loop below)
+                p = pp
+                pp += 1
+                if single > 0:
+                    single -= 1
                 if levels and (big[p] != second):
                     continue
                 rp = rs[p]
