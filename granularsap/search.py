@@ -101,19 +101,25 @@ def _scan_frame(x, rad, kept):
     """One pass over a frame's positions and radii: (first row of ``x`` with a NaN
     or an inf, or -1; ``_magnitudes(x)``; whether every radius is finite and
     non-negative; the smallest and the largest radius; whether ``rad`` equals
-    ``kept`` value for value)."""
+    ``kept`` value for value; the extent of ``x`` along each axis, the largest
+    coordinate less the smallest, or 0 without particles)."""
     n = x.shape[0]
     bad = -1
     hi = 0.0
     lo = np.inf
+    x_lo = np.full(3, np.inf)
+    x_hi = np.full(3, -np.inf)
     for i in range(n):
         for c in range(x.shape[1]):
-            a = abs(x[i, c])
+            v = x[i, c]
+            a = abs(v)
             if not a < np.inf and bad < 0:
                 bad = i
             hi = a if a > hi else hi
             if a > 0.0 and a < lo:
                 lo = a
+            x_lo[c] = v if v < x_lo[c] else x_lo[c]
+            x_hi[c] = v if v > x_hi[c] else x_hi[c]
     ok = True
     rmin = np.inf
     rmax = -np.inf
@@ -126,7 +132,10 @@ def _scan_frame(x, rad, kept):
         rmax = r if r > rmax else rmax
         if same:
             same = r == kept[i]
-    return bad, hi, lo, ok, rmin, rmax, same
+    e0 = x_hi[0] - x_lo[0] if n else 0.0
+    e1 = x_hi[1] - x_lo[1] if n else 0.0
+    e2 = x_hi[2] - x_lo[2] if n else 0.0
+    return bad, hi, lo, ok, rmin, rmax, same, e0, e1, e2
 
 
 def _far_scale(rng, width):
@@ -208,6 +217,14 @@ def _square_bound(thr, strict):
     while math.isfinite(up := math.nextafter(x2, math.inf)) and ok(up):
         x2 = up
     return x2
+
+
+def _octave16(v):
+    """``v`` rounded to the nearest power of two of a sixteenth octave, ``2**(k /
+    16)``, for the cost model's volumes (0, inf and NaN as they are)."""
+    if not 0.0 < v < math.inf:
+        return v
+    return 2.0 ** (round(16.0 * math.log2(v)) / 16.0)
 
 
 def _level_split(rad, rmax, reach, n, volume):
@@ -386,14 +403,16 @@ class _Search:
         checks of ``rad`` (float64, one per row: ``as_radii``'s) and what the frame
         needs of both, in one pass (``_scan_frame``): (-1, largest |x|, smallest
         nonzero |x|, smallest radius, largest radius, True, whether the radii
-        equal the kept ones), for ``_frame``."""
+        equal the kept ones, the extents of the positions along x, y and z),
+        for ``_frame``."""
         kept = self._rad if self._rad is not None else _NO_RADII
         scan = _scan_frame(positions, rad, kept)
         if scan[0] >= 0:
             raise ValueError(f"positions must be finite, got NaN or inf in row {scan[0]}")
         if not scan[3]:
             as_radii(rad, len(rad))  # raises what is wrong
-        return scan[:3] + (scan[4], scan[5], scan[3], scan[6] and kept is self._rad)
+        return scan[:3] + (scan[4], scan[5], scan[3], scan[6] and kept is self._rad,
+                           scan[7:10])
 
     # ------------------------------------------------------------- buffers
     def _alloc_particles(self, n):
@@ -805,13 +824,18 @@ class _Search:
             volume = float(np.prod(span)) * cs.det
         if self._margin == 0.0 and minimum and self._levels is not False:
             if self._levels is True:
+                # the volume with the span to a sixteenth octave, as small frames
+                # take it (a decision of the frame alone, kept while it holds)
+                with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+                    split_volume = _octave16(float(np.prod(span))) * cs.det
                 memo = getattr(self, "_split_memo", None)
-                if memo is not None and memo[0] == (n, reach) and np.array_equal(memo[1], rad):
+                if (memo is not None and memo[0] == (n, reach, split_volume)
+                        and np.array_equal(memo[1], rad)):
                     r_small = memo[2]
                 else:
                     with np.errstate(over="ignore", under="ignore", invalid="ignore"):
-                        r_small = _level_split(rad, rmax, reach, n, volume)
-                    self._split_memo = ((n, reach), rad.copy(), r_small)
+                        r_small = _level_split(rad, rmax, reach, n, split_volume)
+                    self._split_memo = ((n, reach, split_volume), rad.copy(), r_small)
             elif 0.0 < self._levels < rmax:  # a forced split (tests)
                 r_small = float(self._levels)
         self._r_small = r_small
@@ -1061,14 +1085,25 @@ class _Search:
         span = 1.0
         if not cs.all_periodic:
             open_axes = ~cs.pbc
-            if cs.diag:
-                frac = positions[:, open_axes] / np.diag(cs.matrix)[open_axes]
-            else:  # (a sum of products, not a BLAS product: no BLAS threads)
-                h = cs.hinv[:, open_axes]
-                frac = (positions[:, 0:1] * h[0] + positions[:, 1:2] * h[1]
-                        + positions[:, 2:3] * h[2])
+            scan = self._scan_now
             with np.errstate(over="ignore", under="ignore"):
-                span = float(np.prod(frac.max(axis=0) - frac.min(axis=0)))
+                if cs.diag and scan is not None:
+                    # the extents the frame's scan found (positions unscaled)
+                    for c in range(3):
+                        if open_axes[c]:
+                            span *= scan[7][c] / abs(float(cs.matrix[c, c]))
+                else:
+                    if cs.diag:
+                        frac = positions[:, open_axes] / np.diag(cs.matrix)[open_axes]
+                    else:  # (a sum of products, not a BLAS product: no BLAS threads)
+                        h = cs.hinv[:, open_axes]
+                        frac = (positions[:, 0:1] * h[0] + positions[:, 1:2] * h[1]
+                                + positions[:, 2:3] * h[2])
+                    span = float(np.prod(frac.max(axis=0) - frac.min(axis=0)))
+            # particles moving along open axes change the span a little every
+            # step: the decision takes it to a sixteenth of an octave, so that a
+            # DEM loop keeps it (still a function of the frame alone)
+            span = _octave16(span)
         memo = getattr(self, "_small_split_memo", None)
         # (``_small`` has just made the kept radii these: a memo of the same
         # version of them is of the same values)

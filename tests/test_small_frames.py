@@ -162,6 +162,32 @@ def test_two_levels_on_a_small_frame():
     _same(small, general)
 
 
+@pytest.mark.parametrize("small_max", [None, 0])
+def test_kept_search_splits_levels_as_a_fresh_one(small_max):
+    # open axes: the spread of the particles sets the volume of the cost model,
+    # which changes every frame of a moving pack; a kept search decides each
+    # frame's column levels as a fresh search does (a function of the frame)
+    rng = np.random.default_rng(9)
+    n = 3000
+    radii = np.where(rng.random(n) < 0.02, 2.0, 0.2)
+    base = rng.uniform(0.0, 20.0, (n, 3))
+    kept = ContactSearch(quantities="P")
+    if small_max is not None:
+        kept._small_max = small_max
+    seen = set()
+    for scale in (1.0, 1.003, 1.02, 3.0, 1.0, 12.0, 1.001, 40.0, 1.0):
+        pos = base * scale
+        got = kept.update(pos, radii, copy=True)
+        fresh = ContactSearch(quantities="P")
+        if small_max is not None:
+            fresh._small_max = small_max
+        want = fresh.update(pos, radii)
+        assert kept.stats["levels"] == fresh.stats["levels"], scale
+        assert np.array_equal(got, want)
+        seen.add(kept.stats["levels"])
+    assert seen == {1, 2}
+
+
 def test_dense_frame_grows_its_records():
     # every pair in range: pass 1 needs more records than first sized, runs again
     rng = np.random.default_rng(2)
