@@ -70,6 +70,11 @@ class FrameCell:
 
     def __init__(self, cell, pbc):
         """From a full, valid matrix (or None) and its pbc: use :meth:`of`."""
+        # read-only, whatever cell it comes from: a kernel compiles one signature
+        # for it (numba types read-only and writable arrays apart)
+        if pbc.flags.writeable:
+            pbc = pbc.copy()
+            pbc.flags.writeable = False
         self.cell, self.pbc = cell, pbc
         self.all_periodic = bool(pbc.all())
         self.any_periodic = bool(pbc.any())
