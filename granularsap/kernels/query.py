@@ -1,0 +1,354 @@
+"""Cross-set queries: reference points against a column grid of configuration points.
+
+About the algorithm
+-------------------
+A query asks for every pair ``(i, j)`` of a reference point ``i`` and a
+configuration point ``j`` with ``d <= r_ref[i] + r_conf[j] + skin`` (one
+cutoff is radii 0 and ``skin = cutoff``), each pair once, with the integer
+lattice shift ``S`` of the image.  There is no symmetry to use: the pair
+``(i, j)`` and the pair ``(j, i)`` of two sets are different questions.
+
+*The grid* is that of the self-search (``kernels/grid.py``): the
+configuration is wrapped into the cell (``grid.wrap``), binned into ``nb0 x
+nb1`` columns over the fractional coordinates of axes 0 and 1
+(``grid.columns_of``, ``grid.counting_sort``), sorted along axis 2 inside
+each column (``grid.sort_columns``) and gathered into contiguous arrays
+(``grid.gather_columns``).  It depends on the configuration only, so a
+search keeps it while the configuration, its radii and the cell come back,
+and queries of new reference points cost only their own visits (the
+``FastNS(cutoff, coords, box).search(query)`` pattern of MDAnalysis).
+
+*A visit* (``_rows_of``).  Each reference point is wrapped the same way and
+binned with the same formula (clamped to the grid, so that a point outside
+the configuration's span along an open axis falls into the edge column, whose
+neighbours are still its neighbours).  It visits the **full** stencil of
+columns around its own, every column whose fractional interval across axes 0
+and 1 lies within its range ``(r_i + max r_conf + skin) / w_c`` plus the
+rounding guard (``w_c`` the perpendicular width across axis ``c``): two
+points at distance ``d`` differ by at most ``d / w_c`` in fractional
+coordinate ``c``, in triclinic cells too.  Periodic axes wrap the column
+index into a column and a lattice shift; a cell narrower than the range gives
+a stencil of several layers and a window of several periods, so every image
+within range is found when every image is asked for.  Inside a column the
+window ``|t_2 + k - t_2,i| <= range / w_2`` of each shift ``k`` along the
+sweep axis is found by binary search (``common.lower_bound``, ``_upper``),
+then its candidates are tested in one counted loop.  This is the cell-list
+query of a kept grid (MDAnalysis's ``nsgrid``, Hockney and Eastwood's linked
+cells) on the column layout of the multi-SaP of Tracy, Buss and Woods (2009):
+a sweep and prune inside each cell of a spatial subdivision, here with the
+sweep replaced by a binary search because the reference points are not part
+of the sorted lists.
+
+*The arithmetic* is the one of ``grid.py`` (docs/cells.md, "Arithmetic") with
+two sets: a pair is in when ``D = (x_conf[j] - x_ref[i]) + S0 a + S1 b + S2
+c`` (added in that order), ``d = sqrt(D.D)`` passes the threshold, on the
+positions as given.  The visit reads wrapped positions ``w = x - k @ cell``
+through the shift ``s = S + k_conf[j] - k_ref[i]``; when no point of either
+set was wrapped that sum is the agreed one operation for operation (an
+*exact* frame), otherwise a pair within the frame's rounding band
+(``grid.band`` of both sets' largest wrapped coordinate and wrap shift) is
+re-tested on the given positions (``_given_hit``), and the outputs of a pair
+with a wrapped end are computed on them.  Ties at the threshold therefore
+give the brute force's answer bit for bit.
+
+*Two passes* over chunks of reference points (``count``, then ``fill``):
+the first counts each reference point's pairs, a prefix sum gives each its
+first row, the second writes them there.  Chunk boundaries depend on the
+number of reference points only, and each reference point writes its own
+rows in the order of its visit, so the rows (grouped by reference index,
+ascending) never depend on the thread count.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import namedtuple
+from types import SimpleNamespace
+
+import numba
+import numpy as np
+
+from .._numba import ijit, jit, pjit, serial_twin
+from .common import lower_bound
+
+#: the configuration's grid as the visits read it (column order unless named):
+#: ``start`` (ncol + 1) first slot of every column; ``nb0``, ``nb1`` columns;
+#: ``lo0``, ``lo1``, ``inv_f0``, ``inv_f1``, ``f0``, ``f1`` the binning of axes
+#: 0 and 1 (lower edge, columns per fractional unit, column width); ``tz`` the
+#: fractional sweep coordinate; ``xs``, ``ys``, ``zs`` wrapped positions; ``rs``
+#: radii; ``ks`` wrap shifts; ``perm`` input row of every slot; ``xg`` the given
+#: positions (input order)
+Grid = namedtuple("Grid", ["start", "nb0", "nb1", "lo0", "lo1", "inv_f0", "inv_f1", "f0", "f1",
+                           "tz", "xs", "ys", "zs", "rs", "ks", "perm", "xg"])
+
+#: the reference points (input order): ``xg`` given positions, ``t`` fractional
+#: (wrapped along periodic axes), ``k`` wrap shifts, ``w`` wrapped positions,
+#: ``r`` radii, ``order`` the order they are visited in (chunks of it)
+Ref = namedtuple("Ref", ["xg", "t", "k", "w", "r", "order"])
+
+#: the cell and the test: ``cell`` (3, 3) rows, ``pbc``, ``diag`` (orthorhombic),
+#: ``inv_w`` 1 / perpendicular widths; the threshold ``(r_i + r_j) + skin``
+#: (``d < thr`` if ``strict``), ``uniform`` with ``x2`` its squared bound
+#: (``search._square_bound``); the band ``lo2``, ``hi2``, ``dtol``, ``exact``
+#: (``grid.band``); ``rmax`` the configuration's largest radius, ``reach`` the
+#: skin plus the rounding guard and ``dtol`` (every superset holds the band),
+#: ``guard`` the rounding of column edges; ``gap`` (3,) whether a column farther
+#: than the range across that axis is skipped (not along open axes of a frame
+#: with coordinates far beyond the range, whose column edges carry their rounding)
+Test = namedtuple("Test", ["cell", "pbc", "diag", "inv_w", "skin", "strict", "uniform", "x2",
+                           "lo2", "hi2", "dtol", "exact", "rmax", "reach", "guard", "gap"])
+
+#: the outputs of the fill pass: pairs, distances, vectors, shifts (each
+#: written when its ``want_*`` is True)
+Out = namedtuple("Out", ["p", "d", "v", "s", "want_d", "want_v", "want_s"])
+
+
+@ijit
+def _upper(arr, lo, hi, v):
+    """First index in ``[lo, hi)`` of the sorted ``arr`` with ``arr[i] > v``."""
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if arr[mid] <= v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@ijit
+def _given_sum(xr, i, xc, j, cell, g0, g1, g2):
+    """``D = (xc[j] - xr[i]) + g0 a + g1 b + g2 c``, added in this order (the
+    agreed arithmetic on the given positions; ``grid._separation`` with two sets)."""
+    dx = xc[j, 0] - xr[i, 0]
+    dy = xc[j, 1] - xr[i, 1]
+    dz = xc[j, 2] - xr[i, 2]
+    dx += g0 * cell[0, 0]
+    dy += g0 * cell[0, 1]
+    dz += g0 * cell[0, 2]
+    dx += g1 * cell[1, 0]
+    dy += g1 * cell[1, 1]
+    dz += g1 * cell[1, 2]
+    dx += g2 * cell[2, 0]
+    dy += g2 * cell[2, 1]
+    dz += g2 * cell[2, 2]
+    return dx, dy, dz
+
+
+@ijit
+def _hit(d2, thr, strict, uniform, x2):
+    """``d <= thr`` (``<`` if strict) with ``d = sqrt(d2)``; ``d2 <= x2`` with one
+    threshold (``grid._hit``)."""
+    if uniform:
+        return d2 <= x2
+    d = math.sqrt(d2)
+    return (d < thr) | ((not strict) & (d == thr))
+
+
+@ijit
+def _given_hit(g, ref, i, q, ts, s0, s1, s2, thr):
+    """The agreed test of reference ``i`` and slot ``q`` through the wrapped-frame
+    shift ``s``: on the given positions, with the shift relative to them."""
+    g0 = s0 - g.ks[q, 0] + ref.k[i, 0]
+    g1 = s1 - g.ks[q, 1] + ref.k[i, 1]
+    g2 = s2 - g.ks[q, 2] + ref.k[i, 2]
+    dx, dy, dz = _given_sum(ref.xg, i, g.xg, g.perm[q], ts.cell, g0, g1, g2)
+    return _hit(dx * dx + dy * dy + dz * dz, thr, ts.strict, ts.uniform, ts.x2)
+
+
+@ijit
+def _decide(d2, thr, g, ref, i, q, ts, s0, s1, s2):
+    """The agreed test from the squared wrapped separation ``d2``: clearly in or
+    out by the frame's band (``grid._decide``), else re-tested on the given
+    positions."""
+    if ts.uniform:
+        clear_in = d2 <= ts.lo2
+        if clear_in | (not d2 <= ts.hi2):
+            return clear_in
+    else:
+        d = math.sqrt(d2)
+        clear_in = d < thr - ts.dtol
+        if clear_in | (not d <= thr + ts.dtol):
+            return clear_in
+        if ts.exact:  # no band: d == thr
+            return not ts.strict
+    return _given_hit(g, ref, i, q, ts, s0, s1, s2, thr)
+
+
+@ijit
+def _column(t, lo, inv_f, nb):
+    """Column of fractional coordinate ``t`` (``grid.columns_of``'s formula)."""
+    b = int(math.floor((t - lo) * inv_f))
+    return min(max(b, 0), nb - 1)
+
+
+@ijit
+def _layers(d, f, nb, periodic):
+    """Stencil layers of a window ``d`` (fractional) over columns ``f`` wide: one
+    more than the window needs (the gap test of each column decides)."""
+    if f == 0.0:
+        return 0
+    if periodic:
+        return int(math.ceil(min(d / f, 2.0 ** 40))) + 1
+    return int(min(math.ceil(min(d / f, 2.0 ** 40)) + 1, nb - 1))
+
+
+@jit
+def _rows_of(i, g, ref, ts, fill, o, out):
+    """Pairs of reference point ``i``: counted, or (``fill``) written from row
+    ``o``.  Returns (pairs, candidates tested)."""
+    cell = ts.cell
+    pbc = ts.pbc
+    xp = ref.w[i, 0]
+    yp = ref.w[i, 1]
+    zp = ref.w[i, 2]
+    tp0 = ref.t[i, 0]
+    tp1 = ref.t[i, 1]
+    tp2 = ref.t[i, 2]
+    rp = ref.r[i]
+    plain_i = (ref.k[i, 0] == 0) & (ref.k[i, 1] == 0) & (ref.k[i, 2] == 0)
+    rng = rp + ts.rmax + ts.reach
+    rgc = rng + ts.guard
+    d0 = rgc * ts.inv_w[0]
+    d1 = rgc * ts.inv_w[1]
+    dz = rng * ts.inv_w[2]
+    lo_v = tp2 - dz
+    hi_v = tp2 + dz
+    if pbc[2]:
+        # (fractional coordinates in [0, 1]): the shifts k whose period meets the window
+        k_lo = np.int64(math.ceil(lo_v)) - 1
+        k_hi = np.int64(math.floor(hi_v))
+    else:
+        k_lo = np.int64(0)
+        k_hi = np.int64(0)
+    b0 = _column(tp0, g.lo0, g.inv_f0, g.nb0)
+    b1 = _column(tp1, g.lo1, g.inv_f1, g.nb1)
+    L0 = _layers(d0, g.f0, g.nb0, pbc[0])
+    L1 = _layers(d1, g.f1, g.nb1, pbc[1])
+    o_lo0 = -L0 if pbc[0] else max(-L0, -b0)
+    o_hi0 = L0 if pbc[0] else min(L0, g.nb0 - 1 - b0)
+    o_lo1 = -L1 if pbc[1] else max(-L1, -b1)
+    o_hi1 = L1 if pbc[1] else min(L1, g.nb1 - 1 - b1)
+    skin = ts.skin
+    cnt = 0
+    tested = 0
+    for o0 in range(o_lo0, o_hi0 + 1):
+        cu0 = b0 + o0
+        # the gap of the point to the column's fractional interval across axis 0
+        e_lo = g.lo0 + cu0 * g.f0
+        e_hi = g.lo0 + (cu0 + 1) * g.f0
+        if ts.gap[0] and max(e_lo - tp0, tp0 - e_hi) > d0:
+            continue
+        s0 = np.int64(0)
+        c0 = cu0
+        if pbc[0]:
+            s0 = cu0 // g.nb0
+            c0 = cu0 - s0 * g.nb0
+        ax = s0 * cell[0, 0]
+        ay = s0 * cell[0, 1]
+        az = s0 * cell[0, 2]
+        for o1 in range(o_lo1, o_hi1 + 1):
+            cu1 = b1 + o1
+            e_lo = g.lo1 + cu1 * g.f1
+            e_hi = g.lo1 + (cu1 + 1) * g.f1
+            if ts.gap[1] and max(e_lo - tp1, tp1 - e_hi) > d1:
+                continue
+            s1 = np.int64(0)
+            c1 = cu1
+            if pbc[1]:
+                s1 = cu1 // g.nb1
+                c1 = cu1 - s1 * g.nb1
+            col = c0 * g.nb1 + c1
+            lo_c = g.start[col]
+            hi_c = g.start[col + 1]
+            if lo_c == hi_c:
+                continue
+            bx = s1 * cell[1, 0]
+            by = s1 * cell[1, 1]
+            bz = s1 * cell[1, 2]
+            for k in range(k_lo, k_hi + 1):
+                kf = float(k)
+                qa = lower_bound(g.tz, lo_c, hi_c, lo_v - kf)
+                qb = _upper(g.tz, qa, hi_c, hi_v - kf)
+                if qa >= qb:
+                    continue
+                tested += qb - qa
+                cx = k * cell[2, 0]
+                cy = k * cell[2, 1]
+                cz = k * cell[2, 2]
+                for q in range(qa, qb):
+                    if ts.diag:  # the other terms are zeros: no square changes
+                        dx = (g.xs[q] - xp) + ax
+                        dy = (g.ys[q] - yp) + by
+                        dz2 = (g.zs[q] - zp) + cz
+                    else:
+                        dx = (((g.xs[q] - xp) + ax) + bx) + cx
+                        dy = (((g.ys[q] - yp) + ay) + by) + cy
+                        dz2 = (((g.zs[q] - zp) + az) + bz) + cz
+                    d2 = dx * dx + dy * dy + dz2 * dz2
+                    thr = (rp + g.rs[q]) + skin
+                    if ts.exact and ts.uniform:
+                        ok = d2 <= ts.x2
+                    else:
+                        ok = _decide(d2, thr, g, ref, i, q, ts, s0, s1, k)
+                    if not ok:
+                        continue
+                    if fill:
+                        j = g.perm[q]
+                        g0 = s0 - g.ks[q, 0] + ref.k[i, 0]
+                        g1 = s1 - g.ks[q, 1] + ref.k[i, 1]
+                        g2 = k - g.ks[q, 2] + ref.k[i, 2]
+                        r = o + cnt
+                        out.p[r, 0] = i
+                        out.p[r, 1] = j
+                        if out.want_d or out.want_v:
+                            if ts.exact or (plain_i & (g.ks[q, 0] == 0) & (g.ks[q, 1] == 0)
+                                            & (g.ks[q, 2] == 0)):
+                                # the sweep's own sum, every term (the agreed one)
+                                vx = (((g.xs[q] - xp) + ax) + bx) + cx
+                                vy = (((g.ys[q] - yp) + ay) + by) + cy
+                                vz = (((g.zs[q] - zp) + az) + bz) + cz
+                            else:
+                                vx, vy, vz = _given_sum(ref.xg, i, g.xg, j, cell, g0, g1, g2)
+                            if out.want_d:
+                                out.d[r] = math.sqrt(vx * vx + vy * vy + vz * vz)
+                            if out.want_v:
+                                out.v[r, 0] = vx
+                                out.v[r, 1] = vy
+                                out.v[r, 2] = vz
+                        if out.want_s:
+                            out.s[r, 0] = g0
+                            out.s[r, 1] = g1
+                            out.s[r, 2] = g2
+                    cnt += 1
+    return cnt, tested
+
+
+@pjit
+def count(g, ref, ts, chunk, counts, tested, out):
+    """Pass 1: the pairs of every reference point into ``counts`` (input order),
+    the candidates of every chunk of ``chunk`` visited points into ``tested``."""
+    n = ref.order.shape[0]
+    n_chunks = tested.shape[0]
+    for c in numba.prange(n_chunks):
+        tc = 0
+        for a in range(c * chunk, min(n, (c + 1) * chunk)):
+            i = ref.order[a]
+            k, t = _rows_of(i, g, ref, ts, False, 0, out)
+            counts[i] = k
+            tc += t
+        tested[c] = tc
+
+
+@pjit
+def fill(g, ref, ts, chunk, offsets, out):
+    """Pass 2: the pairs of reference point ``i`` from row ``offsets[i]``."""
+    n = ref.order.shape[0]
+    n_chunks = (n + chunk - 1) // chunk
+    for c in numba.prange(n_chunks):
+        for a in range(c * chunk, min(n, (c + 1) * chunk)):
+            i = ref.order[a]
+            _rows_of(i, g, ref, ts, True, offsets[i], out)
+
+
+#: the parallel kernels of this module, compiled serially (same names)
+serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in ("count", "fill")})
