@@ -461,6 +461,8 @@ class _Search:
         values = [*vars(self).values()]
         for buf in self._out_sets:
             values += buf.values()
+        if self._cross is not None:  # the cross-set query's grid and outputs
+            values += self._cross.arrays()
         for value in values:
             if isinstance(value, np.ndarray) and id(value) not in seen:
                 seen.add(id(value))
@@ -1696,6 +1698,16 @@ class _CrossQuery:
         self.range = rng
         self.builds += 1
         return -1
+
+    def arrays(self):
+        """Every array the query keeps (for ``nbytes``)."""
+        out = [v for v in vars(self).values() if isinstance(v, np.ndarray)]
+        grid_ = getattr(self, "grid", None)
+        if grid_ is not None:
+            out += [v for v in grid_ if isinstance(v, np.ndarray)]
+        for buf in self.out_sets:
+            out += [v for v in buf.values() if isinstance(v, np.ndarray)]
+        return out
 
     def outputs(self, total, want):
         """This query's output set for ``total`` rows (``want``: d, D, S)."""
