@@ -1483,7 +1483,8 @@ class _Search:
                 stats["grid"] = "kept"
             else:
                 # the grid keeps its own copy (the given array may be edited in place)
-                kept = np.array(configuration)
+                kept = cq.buffer("conf", configuration.shape, np.float64)
+                np.copyto(kept, configuration)
                 bad = cq.build(kept, conf_r, kept * scale if scale != 1.0 else kept, rc, cs_s,
                                key, range_s, gkern, scan_c)
                 if bad >= 0:
@@ -1631,6 +1632,14 @@ class _CrossQuery:
         self.builds = 0
         self.out_sets = [{}, {}]
         self.out_now = 0
+        self.bufs = {}  # the build's arrays, reused while the configuration's size stays
+
+    def buffer(self, name, shape, dtype):
+        """The build's array ``name``, reused when its shape and type fit."""
+        arr = self.bufs.get(name)
+        if arr is None or arr.shape != shape or arr.dtype != dtype:
+            arr = self.bufs[name] = np.empty(shape, dtype)
+        return arr
 
     def build(self, conf, conf_r, xs_scaled, rs_scaled, cs, key, rng, kern, scan):
         """The column grid of the configuration ``conf`` (a copy the grid keeps) with
@@ -1639,9 +1648,9 @@ class _CrossQuery:
         row that cannot be wrapped, or -1."""
         m = len(xs_scaled)
         self.conf = None  # (invalid until the build is done)
-        t = np.empty((m, 3))
-        k = np.empty((m, 3), np.int64)
-        w = np.empty((m, 3))
+        t = self.buffer("t", (m, 3), np.float64)
+        k = self.buffer("k", (m, 3), np.int64)
+        w = self.buffer("w", (m, 3), np.float64)
         bad, wext, kmax = kern.wrap(xs_scaled, cs.hinv, cs.matrix, cs.diag, cs.pbc, t, k, w,
                                     int(min(_MAX_CHUNKS, max(1, m // _CHUNK))))
         if bad >= 0:
@@ -1672,23 +1681,28 @@ class _CrossQuery:
                     nb[c], inv_f[c], f[c] = 1, 0.0, 0.0
         nb0, nb1 = nb
         ncol = nb0 * nb1
-        col = np.empty(m, np.int64)
+        col = self.buffer("col", (m,), np.int64)
         kern.columns_of(t, lo, np.array([inv_f[0], inv_f[1], 0.0]), nb0, nb1, col)
         fresh = self.perm is None or len(self.perm) != m
         prev = np.arange(m, dtype=np.int64) if fresh else self.perm
         start = np.empty(ncol + 1, np.int64)
-        perm = np.empty(m, np.int64)
+        perm = self.buffer("perm_spare", (m,), np.int64)
         segments = 1 if kern is grid.serial else min(numba.get_num_threads(),
                                                        max(1, m // (4 * ncol + 1)))
         kern.counting_sort(col, prev, ncol, start, perm, np.empty((segments, ncol), np.int64))
         kern.sort_columns(start, ncol, perm, t, 2, fresh)
-        tz, xs, ys, zs, rs = (np.empty(m) for _ in range(5))
+        tz, xs, ys, zs, rs = (self.buffer(name, (m,), np.float64)
+                              for name in ("tz", "xs", "ys", "zs", "rs"))
         kern.gather_columns(perm, t, w, rs_scaled, _NO_ENTRIES, tz, xs, ys, zs, rs,
                             _NO_ENTRIES, False)
-        ks = np.ascontiguousarray(k[perm])
+        if kmax == 0:  # (nothing was wrapped: zeros, pages the kernels only read)
+            ks = np.zeros((m, 3), np.int64)
+        else:
+            ks = np.take(k, perm, axis=0, out=self.buffer("ks", (m, 3), np.int64))
         self.grid = query.Grid(start, nb0, nb1, float(lo[0]), float(lo[1]), float(inv_f[0]),
                                float(inv_f[1]), float(f[0]), float(f[1]), tz, xs, ys, zs, rs,
                                ks, perm, xs_scaled)
+        self.bufs["perm_spare"] = self.perm if not fresh else None
         self.perm = perm
         self.wk = (float(wext), int(kmax))
         self.conf = conf
@@ -1702,6 +1716,7 @@ class _CrossQuery:
     def arrays(self):
         """Every array the query keeps (for ``nbytes``)."""
         out = [v for v in vars(self).values() if isinstance(v, np.ndarray)]
+        out += [v for v in self.bufs.values() if isinstance(v, np.ndarray)]
         grid_ = getattr(self, "grid", None)
         if grid_ is not None:
             out += [v for v in grid_ if isinstance(v, np.ndarray)]
