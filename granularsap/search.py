@@ -1536,8 +1536,8 @@ class _Search:
             else:
                 order = np.arange(n, dtype=np.int64)
             ref = query.Ref(xr, tr, kr, wr, rr, order)
-            ts = query.Test(cs_s.matrix, pbc_s, bool(cs_s.diag), inv_w, float(skin_s), strict,
-                            bool(uniform), float(x2), float(lo2), float(hi2), float(dtol),
+            ts = query.Test(cs_s.matrix, pbc_s.copy(), bool(cs_s.diag), inv_w, float(skin_s),
+                            strict, bool(uniform), float(x2), float(lo2), float(hi2), float(dtol),
                             bool(exact), float(g.rs.max()), float(skin_s + guard + dtol),
                             float(guard), gap)
             n_chunks = (n + _QUERY_CHUNK - 1) // _QUERY_CHUNK
