@@ -1556,6 +1556,7 @@ class _Search:
             total = int(offsets[-1])
             t3 = time.perf_counter()
             times["count"] = t3 - t2
+            _query_memory(total, q, self.layout)
             buf = cq.outputs(total, want)
             out = query.Out(buf["p"], buf["d"], buf["v"], buf["s"], *want)
             if total:
@@ -1754,6 +1755,19 @@ def _query_tiny(reference, configuration, cs, pairs, shifts, d, v, rows):
         u = np.ldexp(vec, -e[:, None])
         d[rows] = np.ldexp(np.sqrt(u[:, 0] * u[:, 0] + u[:, 1] * u[:, 1] + u[:, 2] * u[:, 2]),
                            e)
+
+
+def _query_memory(total, quantities, layout):
+    """MemoryError when a query's ``total`` pairs (counted by its first pass, so
+    exactly) cannot be written in the memory available."""
+    need = total * _memory.bytes_per_pair(quantities, layout)
+    room = _memory.available_memory() if need > (256 << 20) else None
+    if room is not None and need > room:
+        raise MemoryError(
+            f"the query has {total} pairs, which need {need / 2**30:.3g} GiB of outputs "
+            f"({_memory.bytes_per_pair(quantities, layout)} bytes per pair for quantities "
+            f"{quantities!r}) but about {room / 2**30:.3g} GiB is available; query fewer "
+            "reference points at a time or with a smaller range")
 
 
 def _query_dedup(buf, total, m):

@@ -448,3 +448,12 @@ def test_property_contact_query_equals_the_oracle(frame, a, b, strict):
     rr = np.linspace(0.0, a, len(ref))
     rc = np.linspace(b, 0.0, len(conf))
     check_contact(ref, rr, conf, rc, 0.5 * cutoff, *BOXES[kind], images=images, strict=strict)
+
+
+def test_pairs_beyond_the_memory_available_are_refused(monkeypatch):
+    from granularsap import _memory
+
+    monkeypatch.setattr(_memory, "available_memory", lambda: 1 << 20)
+    x = np.random.default_rng(0).uniform(0, 1, (4000, 3))
+    with pytest.raises(MemoryError, match="the query has 16000000 pairs"):
+        NeighborSearch(2.0).query(x, x)
