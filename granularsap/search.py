@@ -1954,8 +1954,10 @@ class NeighborSearch(_Search):
         ``reference[i]`` to the image of ``configuration[j]``; ``'S'`` integer
         lattice shifts with ``D = configuration[j] - reference[i] + S @ cell``
         (the arithmetic of docs/cells.md, added in that order).  Rows are
-        grouped by reference index, ascending; their order depends on the
-        input only, never on the thread count.  ``layout="csr"`` returns
+        grouped by reference index, ascending; inside a group they come in
+        the order the grid was visited, which depends on the input only, never
+        on the thread count (sort them if an order by configuration index is
+        needed).  ``layout="csr"`` returns
         ``(offsets (n + 1,), configuration indices[, distances])`` instead.
         Views of buffers the search owns, valid until the query after next
         (``copy=True`` for copies).
@@ -1967,7 +1969,7 @@ class NeighborSearch(_Search):
         >>> search = NeighborSearch(1.5)
         >>> conf = np.array([[0.5, 0, 0], [4.5, 0, 0], [2.0, 2.0, 2.0]])
         >>> pairs, d = search.query([[0.0, 0, 0]], conf, box=[5, 5, 5, 90, 90, 90])
-        >>> pairs.tolist(), d.tolist()
+        >>> sorted(pairs.tolist()), d.tolist()  # rows of one point: in the order visited
         ([[0, 0], [0, 1]], [0.5, 0.5])
         >>> pairs, d = search.query([[2.0, 2.0, 3.0]], conf, box=[5, 5, 5, 90, 90, 90])
         >>> pairs.tolist(), search.stats["grid"]
