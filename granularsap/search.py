@@ -1700,9 +1700,19 @@ class _CrossQuery:
             ks = np.zeros((m, 3), np.int64)
         else:
             ks = np.take(k, perm, axis=0, out=self.buffer("ks", (m, 3), np.int64))
+        # sweep buckets: about two slots a bucket (``query.zindex``)
+        nz = int(max(1, min(m // (2 * ncol), 1 << 16)))
+        zlo, zspan = (0.0, 1.0) if pbc[2] else (float(t[:, 2].min()), float(np.ptp(t[:, 2])))
+        with np.errstate(over="ignore", divide="ignore"):
+            inv_bz = nz / zspan if zspan > 0 else 0.0
+        if not math.isfinite(inv_bz):
+            nz, inv_bz = 1, 0.0
+        zidx = self.buffer("zidx", (ncol * (nz + 1),), np.int64)
+        kq = query.serial if kern is grid.serial else query
+        kq.zindex(start, tz, zidx, nz, zlo, inv_bz)
         self.grid = query.Grid(start, nb0, nb1, float(lo[0]), float(lo[1]), float(inv_f[0]),
                                float(inv_f[1]), float(f[0]), float(f[1]), tz, xs, ys, zs, rs,
-                               ks, perm, xs_scaled)
+                               ks, perm, xs_scaled, zidx, nz, zlo, float(inv_bz))
         self.bufs["perm_spare"] = self.perm if not fresh else None
         self.perm = perm
         self.wk = (float(wext), int(kmax))

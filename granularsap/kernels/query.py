@@ -31,8 +31,12 @@ index into a column and a lattice shift; a cell narrower than the range gives
 a stencil of several layers and a window of several periods, so every image
 within range is found when every image is asked for.  Inside a column the
 window ``|t_2 + k - t_2,i| <= range / w_2`` of each shift ``k`` along the
-sweep axis is found by binary search (``common.lower_bound``, ``_upper``),
-then its candidates are tested in one counted loop.  This is the cell-list
+sweep axis is found from buckets of the sweep axis (``zindex``: per column
+the first slot of each bucket, about two slots a bucket) and a binary search
+inside one bucket (``common.lower_bound``, ``_upper``), then its candidates
+are tested in counted loops of up to 64 that build a bit mask of the pairs
+(no branch in their body: they vectorise), and only the bits of a superset
+are decided one by one.  This is the cell-list
 query of a kept grid (MDAnalysis's ``nsgrid``, Hockney and Eastwood's linked
 cells) on the column layout of the multi-SaP of Tracy, Buss and Woods (2009):
 a sweep and prune inside each cell of a spatial subdivision, here with the
@@ -69,6 +73,7 @@ import numba
 import numpy as np
 
 from .._numba import ijit, jit, pjit, serial_twin
+from .bits import ctpop, cttz
 from .common import lower_bound
 
 #: the configuration's grid as the visits read it (column order unless named):
@@ -77,9 +82,11 @@ from .common import lower_bound
 #: 0 and 1 (lower edge, columns per fractional unit, column width); ``tz`` the
 #: fractional sweep coordinate; ``xs``, ``ys``, ``zs`` wrapped positions; ``rs``
 #: radii; ``ks`` wrap shifts; ``perm`` input row of every slot; ``xg`` the given
-#: positions (input order)
+#: positions (input order); ``zidx`` the sweep buckets of every column
+#: (``zindex``: ``nz`` buckets from ``zlo``, ``inv_bz`` per fractional unit)
 Grid = namedtuple("Grid", ["start", "nb0", "nb1", "lo0", "lo1", "inv_f0", "inv_f1", "f0", "f1",
-                           "tz", "xs", "ys", "zs", "rs", "ks", "perm", "xg"])
+                           "tz", "xs", "ys", "zs", "rs", "ks", "perm", "xg", "zidx", "nz",
+                           "zlo", "inv_bz"])
 
 #: the reference points (input order): ``xg`` given positions, ``t`` fractional
 #: (wrapped along periodic axes), ``k`` wrap shifts, ``w`` wrapped positions,
@@ -113,6 +120,40 @@ def _upper(arr, lo, hi, v):
         else:
             hi = mid
     return lo
+
+
+@ijit
+def _bucket(v, zlo, inv_bz, top):
+    """Sweep bucket of fractional coordinate ``v``: ``floor((v - zlo) * inv_bz)``
+    clamped to ``[0, top]``, a monotone function of ``v``."""
+    f = (v - zlo) * inv_bz
+    f = min(max(f, 0.0), top)
+    return np.int64(f)
+
+
+@pjit
+def zindex(start, tz, zidx, nz, zlo, inv_bz):
+    """For every column ``c`` and bucket ``b``, ``zidx[c * (nz + 1) + b]``: the first
+    slot of the column whose sweep coordinate has bucket ``b`` or more (the
+    column's end for ``b = nz``).  A window's end is then looked up in the few
+    slots of one bucket instead of the whole column: since the bucket is
+    monotone, the first slot with ``tz >= v`` lies in ``[zidx[b(v)], zidx[b(v) +
+    1]]``."""
+    ncol = start.shape[0] - 1
+    top = float(nz - 1)
+    stride = nz + 1
+    for c in numba.prange(ncol):
+        row = c * stride
+        hi = start[c + 1]
+        b = 0
+        for q in range(start[c], hi):
+            bq = _bucket(tz[q], zlo, inv_bz, top)
+            while b <= bq:
+                zidx[row + b] = q
+                b += 1
+        while b <= nz:
+            zidx[row + b] = hi
+            b += 1
 
 
 @ijit
@@ -192,6 +233,79 @@ def _layers(d, f, nb, periodic):
     return int(min(math.ceil(min(d / f, 2.0 ** 40)) + 1, nb - 1))
 
 
+_LOOSE = 1.0 + 1e-12
+
+
+@ijit
+def _run_mask(g, lo, hi, xp, yp, zp, rp, ax, ay, az, bx, by, bz, cx, cy, cz, ts):
+    """64-bit mask of the candidates ``[lo, hi)`` (at most 64) of one column and
+    shift: the pairs in range when the frame is exact with one threshold, else
+    a superset (up to the band's ``hi2``, or a hair beyond ``thr + dtol``) that
+    the caller decides bit by bit.  A counted loop with no branch in its body,
+    which the compiler vectorises (``grid._sweep_chunk``'s loops)."""
+    word = np.uint64(0)
+    ub = np.uint64(lo)
+    xs = g.xs
+    ys = g.ys
+    zs = g.zs
+    if ts.uniform:
+        bound = ts.x2 if ts.exact else ts.hi2
+        if ts.diag:
+            for t in range(hi - lo):
+                u = ub + np.uint64(t)
+                dx = (xs[u] - xp) + ax
+                dy = (ys[u] - yp) + by
+                dz = (zs[u] - zp) + cz
+                word |= np.uint64(dx * dx + dy * dy + dz * dz <= bound) << np.uint64(t)
+        else:
+            for t in range(hi - lo):
+                u = ub + np.uint64(t)
+                dx = (((xs[u] - xp) + ax) + bx) + cx
+                dy = (((ys[u] - yp) + ay) + by) + cy
+                dz = (((zs[u] - zp) + az) + bz) + cz
+                word |= np.uint64(dx * dx + dy * dy + dz * dz <= bound) << np.uint64(t)
+        return word
+    rs = g.rs
+    sup = ts.skin + ts.dtol
+    if ts.diag:
+        for t in range(hi - lo):
+            u = ub + np.uint64(t)
+            dx = (xs[u] - xp) + ax
+            dy = (ys[u] - yp) + by
+            dz = (zs[u] - zp) + cz
+            thr = rp + rs[u] + sup
+            word |= np.uint64(dx * dx + dy * dy + dz * dz <= thr * thr * _LOOSE) << np.uint64(t)
+    else:
+        for t in range(hi - lo):
+            u = ub + np.uint64(t)
+            dx = (((xs[u] - xp) + ax) + bx) + cx
+            dy = (((ys[u] - yp) + ay) + by) + cy
+            dz = (((zs[u] - zp) + az) + bz) + cz
+            thr = rp + rs[u] + sup
+            word |= np.uint64(dx * dx + dy * dy + dz * dz <= thr * thr * _LOOSE) << np.uint64(t)
+    return word
+
+
+@ijit
+def _run_mask_below(g, lo, hi, xp, yp, zp, ax, ay, az, bx, by, bz, cx, cy, cz, diag, bound):
+    """64-bit mask of the candidates ``[lo, hi)`` with ``d2 <= bound`` (the band's
+    clearly-in ``lo2``)."""
+    word = np.uint64(0)
+    ub = np.uint64(lo)
+    for t in range(hi - lo):
+        u = ub + np.uint64(t)
+        if diag:
+            dx = (g.xs[u] - xp) + ax
+            dy = (g.ys[u] - yp) + by
+            dz = (g.zs[u] - zp) + cz
+        else:
+            dx = (((g.xs[u] - xp) + ax) + bx) + cx
+            dy = (((g.ys[u] - yp) + ay) + by) + cy
+            dz = (((g.zs[u] - zp) + az) + bz) + cz
+        word |= np.uint64(dx * dx + dy * dy + dz * dz <= bound) << np.uint64(t)
+    return word
+
+
 @jit
 def _rows_of(i, g, ref, ts, fill, o, out):
     """Pairs of reference point ``i``: counted, or (``fill``) written from row
@@ -231,6 +345,15 @@ def _rows_of(i, g, ref, ts, fill, o, out):
     skin = ts.skin
     cnt = 0
     tested = 0
+    ztop = float(g.nz - 1)
+    # the common case, an exact frame with one threshold, in loops of its own
+    # (written out so that they vectorise); orthorhombic or not
+    fast = ts.exact and ts.uniform
+    diag = ts.diag
+    gxs = g.xs
+    gys = g.ys
+    gzs = g.zs
+    x2 = ts.x2
     for o0 in range(o_lo0, o_hi0 + 1):
         cu0 = b0 + o0
         # the gap of the point to the column's fractional interval across axis 0
@@ -258,41 +381,80 @@ def _rows_of(i, g, ref, ts, fill, o, out):
                 s1 = cu1 // g.nb1
                 c1 = cu1 - s1 * g.nb1
             col = c0 * g.nb1 + c1
-            lo_c = g.start[col]
-            hi_c = g.start[col + 1]
-            if lo_c == hi_c:
+            if g.start[col] == g.start[col + 1]:
                 continue
+            row = col * (g.nz + 1)
             bx = s1 * cell[1, 0]
             by = s1 * cell[1, 1]
             bz = s1 * cell[1, 2]
             for k in range(k_lo, k_hi + 1):
                 kf = float(k)
-                qa = lower_bound(g.tz, lo_c, hi_c, lo_v - kf)
-                qb = _upper(g.tz, qa, hi_c, hi_v - kf)
+                v = lo_v - kf
+                b = row + _bucket(v, g.zlo, g.inv_bz, ztop)
+                qa = lower_bound(g.tz, g.zidx[b], g.zidx[b + 1], v)
+                v = hi_v - kf
+                b = row + _bucket(v, g.zlo, g.inv_bz, ztop)
+                qb = _upper(g.tz, max(qa, g.zidx[b]), g.zidx[b + 1], v)
                 if qa >= qb:
                     continue
                 tested += qb - qa
                 cx = k * cell[2, 0]
                 cy = k * cell[2, 1]
                 cz = k * cell[2, 2]
-                for q in range(qa, qb):
-                    if ts.diag:  # the other terms are zeros: no square changes
-                        dx = (g.xs[q] - xp) + ax
-                        dy = (g.ys[q] - yp) + by
-                        dz2 = (g.zs[q] - zp) + cz
+                for base in range(qa, qb, 64):
+                    top = min(base + 64, qb)
+                    if fast:
+                        word = np.uint64(0)
+                        ub = np.uint64(base)
+                        if diag:
+                            for t in range(top - base):
+                                u = ub + np.uint64(t)
+                                dx = (gxs[u] - xp) + ax
+                                dy = (gys[u] - yp) + by
+                                dz = (gzs[u] - zp) + cz
+                                word |= np.uint64(dx * dx + dy * dy + dz * dz <= x2) << (
+                                    np.uint64(t))
+                        else:
+                            for t in range(top - base):
+                                u = ub + np.uint64(t)
+                                dx = (((gxs[u] - xp) + ax) + bx) + cx
+                                dy = (((gys[u] - yp) + ay) + by) + cy
+                                dz = (((gzs[u] - zp) + az) + bz) + cz
+                                word |= np.uint64(dx * dx + dy * dy + dz * dz <= x2) << (
+                                    np.uint64(t))
                     else:
-                        dx = (((g.xs[q] - xp) + ax) + bx) + cx
-                        dy = (((g.ys[q] - yp) + ay) + by) + cy
-                        dz2 = (((g.zs[q] - zp) + az) + bz) + cz
-                    d2 = dx * dx + dy * dy + dz2 * dz2
-                    thr = (rp + g.rs[q]) + skin
-                    if ts.exact and ts.uniform:
-                        ok = d2 <= ts.x2
-                    else:
-                        ok = _decide(d2, thr, g, ref, i, q, ts, s0, s1, k)
-                    if not ok:
+                        word = _run_mask(g, base, top, xp, yp, zp, rp, ax, ay, az, bx, by, bz,
+                                         cx, cy, cz, ts)
+                        # the bits of a superset: decided one by one
+                        bits = word
+                        if ts.uniform:  # those clearly in (up to lo2) need no test
+                            bits &= ~_run_mask_below(g, base, top, xp, yp, zp, ax, ay, az, bx,
+                                                     by, bz, cx, cy, cz, ts.diag, ts.lo2)
+                        while bits:
+                            t = cttz(bits)
+                            bits &= bits - np.uint64(1)
+                            q = base + np.int64(t)
+                            if ts.diag:
+                                dx = (g.xs[q] - xp) + ax
+                                dy = (g.ys[q] - yp) + by
+                                dz2 = (g.zs[q] - zp) + cz
+                            else:
+                                dx = (((g.xs[q] - xp) + ax) + bx) + cx
+                                dy = (((g.ys[q] - yp) + ay) + by) + cy
+                                dz2 = (((g.zs[q] - zp) + az) + bz) + cz
+                            d2 = dx * dx + dy * dy + dz2 * dz2
+                            if not _decide(d2, (rp + g.rs[q]) + skin, g, ref, i, q, ts, s0,
+                                           s1, k):
+                                word &= ~(np.uint64(1) << t)
+                    if not word:
                         continue
-                    if fill:
+                    if not fill:
+                        cnt += np.int64(ctpop(word))
+                        continue
+                    while word:
+                        t = cttz(word)
+                        word &= word - np.uint64(1)
+                        q = base + np.int64(t)
                         j = g.perm[q]
                         g0 = s0 - g.ks[q, 0] + ref.k[i, 0]
                         g1 = s1 - g.ks[q, 1] + ref.k[i, 1]
@@ -303,7 +465,7 @@ def _rows_of(i, g, ref, ts, fill, o, out):
                         if out.want_d or out.want_v:
                             if ts.exact or (plain_i & (g.ks[q, 0] == 0) & (g.ks[q, 1] == 0)
                                             & (g.ks[q, 2] == 0)):
-                                # the sweep's own sum, every term (the agreed one)
+                                # the visit's own sum, every term (the agreed one)
                                 vx = (((g.xs[q] - xp) + ax) + bx) + cx
                                 vy = (((g.ys[q] - yp) + ay) + by) + cy
                                 vz = (((g.zs[q] - zp) + az) + bz) + cz
@@ -319,7 +481,7 @@ def _rows_of(i, g, ref, ts, fill, o, out):
                             out.s[r, 0] = g0
                             out.s[r, 1] = g1
                             out.s[r, 2] = g2
-                    cnt += 1
+                        cnt += 1
     return cnt, tested
 
 
@@ -351,4 +513,5 @@ def fill(g, ref, ts, chunk, offsets, out):
 
 
 #: the parallel kernels of this module, compiled serially (same names)
-serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in ("count", "fill")})
+serial = SimpleNamespace(**{name: serial_twin(globals()[name])
+                            for name in ("count", "fill", "zindex")})
