@@ -1546,11 +1546,9 @@ class _Search:
             dedup = (minimum and cs.cell is not None
                      and 2.0 * reach_max >= cs.min_periodic_width * (1.0 - 1e-9))
             want = ("d" in q or dedup or tiny, "D" in q, "S" in q or tiny)
-            empty = query.Out(np.empty((0, 2), np.int64), _NO_RADII, np.empty((0, 3)),
-                              np.empty((0, 3), np.int64), *want)
             t2 = time.perf_counter()
             times["wrap"] = t2 - t1
-            qkern.count(g, ref, ts, _QUERY_CHUNK, counts, tested, empty)
+            rec, wstart, wneed = cq.pass1(qkern, g, ref, ts, counts, tested, _QUERY_CHUNK)
             offsets = np.zeros(n + 1, np.int64)
             np.cumsum(counts, out=offsets[1:])
             total = int(offsets[-1])
@@ -1560,7 +1558,7 @@ class _Search:
             buf = cq.outputs(total, want)
             out = query.Out(buf["p"], buf["d"], buf["v"], buf["s"], *want)
             if total:
-                qkern.fill(g, ref, ts, _QUERY_CHUNK, offsets, out)
+                qkern.fill(g, ref, ts, rec, wstart, wneed, offsets, out)
             times["fill"] = time.perf_counter() - t3
         if dedup and total:
             total = _query_dedup(buf, total, m)
@@ -1634,6 +1632,8 @@ class _CrossQuery:
         self.out_sets = [{}, {}]
         self.out_now = 0
         self.bufs = {}  # the build's arrays, reused while the configuration's size stays
+        self.records = None  # pass 1's records (query.Rec), grown as needed
+        self.per_ref = 16.0  # records per reference point to make room for
 
     def buffer(self, name, shape, dtype):
         """The build's array ``name``, reused when its shape and type fit."""
@@ -1724,10 +1724,43 @@ class _CrossQuery:
         self.builds += 1
         return -1
 
+    def pass1(self, kern, g, ref, ts, counts, tested, chunk):
+        """Pass 1 of a query (``query.count``) with its records in regions sized
+        from the last query's records per reference point (a chunk that needs
+        more is run again with room for them); (records, wstart, wneed)."""
+        n_chunks = len(tested)
+        n = len(counts)
+        rows = np.minimum(chunk, n - chunk * np.arange(n_chunks))
+        wcap = (rows * self.per_ref).astype(np.int64) + 64
+        todo = np.ones(n_chunks, np.bool_)
+        wneed = np.zeros(n_chunks, np.int64)
+        while True:
+            wstart = np.zeros(n_chunks, np.int64)
+            np.cumsum(wcap[:-1], out=wstart[1:])
+            size = int(wcap.sum())
+            rec = self.records
+            if rec is None or len(rec.word) < size:
+                size += size // 8
+                rec = self.records = query.Rec(np.empty(size, np.uint64),
+                                               np.empty(size, np.int64),
+                                               np.empty(size, np.int64),
+                                               np.empty(size, np.int64))
+                todo[:] = True
+            kern.count(g, ref, ts, chunk, counts, tested, rec, wstart, wcap, wneed, todo)
+            over = wneed > wcap
+            if not over.any():
+                break
+            wcap = np.where(over, wneed + wneed // 8 + 64, wcap)
+            todo = over
+        self.per_ref = max(1.0, float(wneed.sum()) / max(n, 1) * 1.25)
+        return rec, wstart, wneed
+
     def arrays(self):
         """Every array the query keeps (for ``nbytes``)."""
         out = [v for v in vars(self).values() if isinstance(v, np.ndarray)]
         out += [v for v in self.bufs.values() if isinstance(v, np.ndarray)]
+        if self.records is not None:
+            out += list(self.records)
         grid_ = getattr(self, "grid", None)
         if grid_ is not None:
             out += [v for v in grid_ if isinstance(v, np.ndarray)]

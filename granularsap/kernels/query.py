@@ -56,8 +56,11 @@ with a wrapped end are computed on them.  Ties at the threshold therefore
 give the brute force's answer bit for bit.
 
 *Two passes* over chunks of reference points (``count``, then ``fill``):
-the first counts each reference point's pairs, a prefix sum gives each its
-first row, the second writes them there.  Chunk boundaries depend on the
+the first tests every candidate once and keeps, for every run of up to 64
+candidates that holds a pair, a record (the 64-bit mask of its pairs, the
+first slot, the reference point, the shift; ``grid._sweep_chunk``'s records),
+and counts each reference point's pairs; a prefix sum gives each its first
+row, and the second pass writes the pairs of the records there.  Chunk boundaries depend on the
 number of reference points only, and each reference point writes its own
 rows in the order of its visit, so the rows (grouped by reference index,
 ascending) never depend on the thread count.
@@ -108,6 +111,28 @@ Test = namedtuple("Test", ["cell", "pbc", "diag", "inv_w", "skin", "strict", "un
 #: the outputs of the fill pass: pairs, distances, vectors, shifts (each
 #: written when its ``want_*`` is True)
 Out = namedtuple("Out", ["p", "d", "v", "s", "want_d", "want_v", "want_s"])
+
+
+#: pass 1's records: for every run of up to 64 candidates of one column and
+#: shift that holds a pair, the 64-bit ``word`` of its pairs, the first slot
+#: ``base``, the reference point ``ref`` and the packed shift ``shift`` (``_pack``)
+Rec = namedtuple("Rec", ["word", "base", "ref", "shift"])
+
+#: bias of one 21-bit field of a packed shift (shifts up to a million cells)
+_BIAS = 1 << 20
+
+
+@ijit
+def _pack(s0, s1, s2):
+    """int64 code of the lattice shift ``(s0, s1, s2)``: three biased 21-bit fields."""
+    return ((s0 + _BIAS) << 42) | ((s1 + _BIAS) << 21) | (s2 + _BIAS)
+
+
+@ijit
+def _unpack(code):
+    """``(s0, s1, s2)`` of a packed shift."""
+    mask = (1 << 21) - 1
+    return (code >> 42) - _BIAS, ((code >> 21) & mask) - _BIAS, (code & mask) - _BIAS
 
 
 @ijit
@@ -238,33 +263,16 @@ _LOOSE = 1.0 + 1e-12
 
 @ijit
 def _run_mask(g, lo, hi, xp, yp, zp, rp, ax, ay, az, bx, by, bz, cx, cy, cz, ts):
-    """64-bit mask of the candidates ``[lo, hi)`` (at most 64) of one column and
-    shift: the pairs in range when the frame is exact with one threshold, else
-    a superset (up to the band's ``hi2``, or a hair beyond ``thr + dtol``) that
-    the caller decides bit by bit.  A counted loop with no branch in its body,
-    which the compiler vectorises (``grid._sweep_chunk``'s loops)."""
+    """64-bit mask of a superset of the pairs among the candidates ``[lo, hi)``
+    (at most 64) of one column and shift, with a threshold per pair: those a
+    hair beyond ``r_i + r_j + skin + dtol``, which the caller decides bit by
+    bit.  A counted loop with no branch in its body, which the compiler
+    vectorises (``grid._sweep_chunk``'s loops)."""
     word = np.uint64(0)
     ub = np.uint64(lo)
     xs = g.xs
     ys = g.ys
     zs = g.zs
-    if ts.uniform:
-        bound = ts.x2 if ts.exact else ts.hi2
-        if ts.diag:
-            for t in range(hi - lo):
-                u = ub + np.uint64(t)
-                dx = (xs[u] - xp) + ax
-                dy = (ys[u] - yp) + by
-                dz = (zs[u] - zp) + cz
-                word |= np.uint64(dx * dx + dy * dy + dz * dz <= bound) << np.uint64(t)
-        else:
-            for t in range(hi - lo):
-                u = ub + np.uint64(t)
-                dx = (((xs[u] - xp) + ax) + bx) + cx
-                dy = (((ys[u] - yp) + ay) + by) + cy
-                dz = (((zs[u] - zp) + az) + bz) + cz
-                word |= np.uint64(dx * dx + dy * dy + dz * dz <= bound) << np.uint64(t)
-        return word
     rs = g.rs
     sup = ts.skin + ts.dtol
     if ts.diag:
@@ -286,30 +294,11 @@ def _run_mask(g, lo, hi, xp, yp, zp, rp, ax, ay, az, bx, by, bz, cx, cy, cz, ts)
     return word
 
 
-@ijit
-def _run_mask_below(g, lo, hi, xp, yp, zp, ax, ay, az, bx, by, bz, cx, cy, cz, diag, bound):
-    """64-bit mask of the candidates ``[lo, hi)`` with ``d2 <= bound`` (the band's
-    clearly-in ``lo2``)."""
-    word = np.uint64(0)
-    ub = np.uint64(lo)
-    for t in range(hi - lo):
-        u = ub + np.uint64(t)
-        if diag:
-            dx = (g.xs[u] - xp) + ax
-            dy = (g.ys[u] - yp) + by
-            dz = (g.zs[u] - zp) + cz
-        else:
-            dx = (((g.xs[u] - xp) + ax) + bx) + cx
-            dy = (((g.ys[u] - yp) + ay) + by) + cy
-            dz = (((g.zs[u] - zp) + az) + bz) + cz
-        word |= np.uint64(dx * dx + dy * dy + dz * dz <= bound) << np.uint64(t)
-    return word
-
-
 @jit
-def _rows_of(i, g, ref, ts, fill, o, out):
-    """Pairs of reference point ``i``: counted, or (``fill``) written from row
-    ``o``.  Returns (pairs, candidates tested)."""
+def _rows_of(i, g, ref, ts, rec, wbase, wcap, w):
+    """Pass 1 of reference point ``i``: its pairs, kept as records (``Rec``) from
+    ``wbase + w`` while they fit under ``wcap``.  Returns (pairs, candidates
+    tested, records made so far in the chunk)."""
     cell = ts.cell
     pbc = ts.pbc
     xp = ref.w[i, 0]
@@ -319,7 +308,6 @@ def _rows_of(i, g, ref, ts, fill, o, out):
     tp1 = ref.t[i, 1]
     tp2 = ref.t[i, 2]
     rp = ref.r[i]
-    plain_i = (ref.k[i, 0] == 0) & (ref.k[i, 1] == 0) & (ref.k[i, 2] == 0)
     rng = rp + ts.rmax + ts.reach
     rgc = rng + ts.guard
     d0 = rgc * ts.inv_w[0]
@@ -346,14 +334,15 @@ def _rows_of(i, g, ref, ts, fill, o, out):
     cnt = 0
     tested = 0
     ztop = float(g.nz - 1)
-    # the common case, an exact frame with one threshold, in loops of its own
-    # (written out so that they vectorise); orthorhombic or not
-    fast = ts.exact and ts.uniform
+    # the common case, one threshold, in loops of its own (written out so that
+    # they vectorise); orthorhombic or not
+    fast = ts.uniform
+    hi = ts.x2 if ts.exact else ts.hi2
+    lo = ts.x2 if ts.exact else ts.lo2
     diag = ts.diag
     gxs = g.xs
     gys = g.ys
     gzs = g.zs
-    x2 = ts.x2
     for o0 in range(o_lo0, o_hi0 + 1):
         cu0 = b0 + o0
         # the gap of the point to the column's fractional interval across axis 0
@@ -404,7 +393,10 @@ def _rows_of(i, g, ref, ts, fill, o, out):
                 for base in range(qa, qb, 64):
                     top = min(base + 64, qb)
                     if fast:
+                        # one threshold: ``word`` the pairs up to hi, ``inner`` those up
+                        # to lo (an exact frame: both x2); the rest is decided below
                         word = np.uint64(0)
+                        inner = np.uint64(0)
                         ub = np.uint64(base)
                         if diag:
                             for t in range(top - base):
@@ -412,104 +404,145 @@ def _rows_of(i, g, ref, ts, fill, o, out):
                                 dx = (gxs[u] - xp) + ax
                                 dy = (gys[u] - yp) + by
                                 dz = (gzs[u] - zp) + cz
-                                word |= np.uint64(dx * dx + dy * dy + dz * dz <= x2) << (
-                                    np.uint64(t))
+                                d2 = dx * dx + dy * dy + dz * dz
+                                word |= np.uint64(d2 <= hi) << np.uint64(t)
+                                inner |= np.uint64(d2 <= lo) << np.uint64(t)
                         else:
                             for t in range(top - base):
                                 u = ub + np.uint64(t)
                                 dx = (((gxs[u] - xp) + ax) + bx) + cx
                                 dy = (((gys[u] - yp) + ay) + by) + cy
                                 dz = (((gzs[u] - zp) + az) + bz) + cz
-                                word |= np.uint64(dx * dx + dy * dy + dz * dz <= x2) << (
-                                    np.uint64(t))
+                                d2 = dx * dx + dy * dy + dz * dz
+                                word |= np.uint64(d2 <= hi) << np.uint64(t)
+                                inner |= np.uint64(d2 <= lo) << np.uint64(t)
+                        bits = word & ~inner
                     else:
+                        # radii: a superset (``_run_mask``), decided bit by bit
                         word = _run_mask(g, base, top, xp, yp, zp, rp, ax, ay, az, bx, by, bz,
                                          cx, cy, cz, ts)
-                        # the bits of a superset: decided one by one
                         bits = word
-                        if ts.uniform:  # those clearly in (up to lo2) need no test
-                            bits &= ~_run_mask_below(g, base, top, xp, yp, zp, ax, ay, az, bx,
-                                                     by, bz, cx, cy, cz, ts.diag, ts.lo2)
-                        while bits:
-                            t = cttz(bits)
-                            bits &= bits - np.uint64(1)
-                            q = base + np.int64(t)
-                            if ts.diag:
-                                dx = (g.xs[q] - xp) + ax
-                                dy = (g.ys[q] - yp) + by
-                                dz2 = (g.zs[q] - zp) + cz
-                            else:
-                                dx = (((g.xs[q] - xp) + ax) + bx) + cx
-                                dy = (((g.ys[q] - yp) + ay) + by) + cy
-                                dz2 = (((g.zs[q] - zp) + az) + bz) + cz
-                            d2 = dx * dx + dy * dy + dz2 * dz2
-                            if not _decide(d2, (rp + g.rs[q]) + skin, g, ref, i, q, ts, s0,
-                                           s1, k):
-                                word &= ~(np.uint64(1) << t)
+                    while bits:
+                        t = cttz(bits)
+                        bits &= bits - np.uint64(1)
+                        q = base + np.int64(t)
+                        if diag:
+                            dx = (g.xs[q] - xp) + ax
+                            dy = (g.ys[q] - yp) + by
+                            dz2 = (g.zs[q] - zp) + cz
+                        else:
+                            dx = (((g.xs[q] - xp) + ax) + bx) + cx
+                            dy = (((g.ys[q] - yp) + ay) + by) + cy
+                            dz2 = (((g.zs[q] - zp) + az) + bz) + cz
+                        d2 = dx * dx + dy * dy + dz2 * dz2
+                        if not _decide(d2, (rp + g.rs[q]) + skin, g, ref, i, q, ts, s0, s1, k):
+                            word &= ~(np.uint64(1) << t)
                     if not word:
                         continue
-                    if not fill:
-                        cnt += np.int64(ctpop(word))
-                        continue
-                    while word:
-                        t = cttz(word)
-                        word &= word - np.uint64(1)
-                        q = base + np.int64(t)
-                        j = g.perm[q]
-                        g0 = s0 - g.ks[q, 0] + ref.k[i, 0]
-                        g1 = s1 - g.ks[q, 1] + ref.k[i, 1]
-                        g2 = k - g.ks[q, 2] + ref.k[i, 2]
-                        r = o + cnt
-                        out.p[r, 0] = i
-                        out.p[r, 1] = j
-                        if out.want_d or out.want_v:
-                            if ts.exact or (plain_i & (g.ks[q, 0] == 0) & (g.ks[q, 1] == 0)
-                                            & (g.ks[q, 2] == 0)):
-                                # the visit's own sum, every term (the agreed one)
-                                vx = (((g.xs[q] - xp) + ax) + bx) + cx
-                                vy = (((g.ys[q] - yp) + ay) + by) + cy
-                                vz = (((g.zs[q] - zp) + az) + bz) + cz
-                            else:
-                                vx, vy, vz = _given_sum(ref.xg, i, g.xg, j, cell, g0, g1, g2)
-                            if out.want_d:
-                                out.d[r] = math.sqrt(vx * vx + vy * vy + vz * vz)
-                            if out.want_v:
-                                out.v[r, 0] = vx
-                                out.v[r, 1] = vy
-                                out.v[r, 2] = vz
-                        if out.want_s:
-                            out.s[r, 0] = g0
-                            out.s[r, 1] = g1
-                            out.s[r, 2] = g2
-                        cnt += 1
-    return cnt, tested
+                    if w < wcap:
+                        r = wbase + w
+                        rec.word[r] = word
+                        rec.base[r] = base
+                        rec.ref[r] = i
+                        rec.shift[r] = _pack(s0, s1, k)
+                    w += 1
+                    cnt += np.int64(ctpop(word))
+    return cnt, tested, w
+
+
+@jit
+def _fill_records(r_lo, r_hi, g, ref, ts, offsets, rec, out):
+    """Pass 2: the pairs of records ``[r_lo, r_hi)`` (those of whole reference
+    points, in the order pass 1 made them), each reference point's from its
+    row ``offsets[i]``.  Distances and vectors are the agreed arithmetic's: the
+    visit's own sum (every term) in an exact frame and for pairs of two points
+    not wrapped, else the sum on the given positions with the shift relative
+    to them."""
+    cell = ts.cell
+    last = np.int64(-1)
+    o = np.int64(0)
+    for r in range(r_lo, r_hi):
+        i = rec.ref[r]
+        if i != last:
+            last = i
+            o = offsets[i]
+        s0, s1, s2 = _unpack(rec.shift[r])
+        ax = s0 * cell[0, 0]
+        ay = s0 * cell[0, 1]
+        az = s0 * cell[0, 2]
+        bx = s1 * cell[1, 0]
+        by = s1 * cell[1, 1]
+        bz = s1 * cell[1, 2]
+        cx = s2 * cell[2, 0]
+        cy = s2 * cell[2, 1]
+        cz = s2 * cell[2, 2]
+        xp = ref.w[i, 0]
+        yp = ref.w[i, 1]
+        zp = ref.w[i, 2]
+        ki0 = ref.k[i, 0]
+        ki1 = ref.k[i, 1]
+        ki2 = ref.k[i, 2]
+        plain_i = (ki0 == 0) & (ki1 == 0) & (ki2 == 0)
+        word = rec.word[r]
+        base = rec.base[r]
+        while word:
+            t = cttz(word)
+            word &= word - np.uint64(1)
+            q = base + np.int64(t)
+            j = g.perm[q]
+            g0 = s0 - g.ks[q, 0] + ki0
+            g1 = s1 - g.ks[q, 1] + ki1
+            g2 = s2 - g.ks[q, 2] + ki2
+            out.p[o, 0] = i
+            out.p[o, 1] = j
+            if out.want_d or out.want_v:
+                if ts.exact or (plain_i & (g.ks[q, 0] == 0) & (g.ks[q, 1] == 0)
+                                & (g.ks[q, 2] == 0)):
+                    vx = (((g.xs[q] - xp) + ax) + bx) + cx
+                    vy = (((g.ys[q] - yp) + ay) + by) + cy
+                    vz = (((g.zs[q] - zp) + az) + bz) + cz
+                else:
+                    vx, vy, vz = _given_sum(ref.xg, i, g.xg, j, cell, g0, g1, g2)
+                if out.want_d:
+                    out.d[o] = math.sqrt(vx * vx + vy * vy + vz * vz)
+                if out.want_v:
+                    out.v[o, 0] = vx
+                    out.v[o, 1] = vy
+                    out.v[o, 2] = vz
+            if out.want_s:
+                out.s[o, 0] = g0
+                out.s[o, 1] = g1
+                out.s[o, 2] = g2
+            o += 1
 
 
 @pjit
-def count(g, ref, ts, chunk, counts, tested, out):
-    """Pass 1: the pairs of every reference point into ``counts`` (input order),
-    the candidates of every chunk of ``chunk`` visited points into ``tested``."""
+def count(g, ref, ts, chunk, counts, tested, rec, wstart, wcap, wneed, todo):
+    """Pass 1 over every chunk of ``chunk`` visited reference points marked in
+    ``todo``: the pairs of each point into ``counts`` (input order), the
+    candidates of each chunk into ``tested``, its records from ``wstart[c]``
+    (kept while they fit its ``wcap[c]``; ``wneed[c]`` says how many it needs:
+    a chunk that needs more is run again with more room)."""
     n = ref.order.shape[0]
-    n_chunks = tested.shape[0]
-    for c in numba.prange(n_chunks):
+    for c in numba.prange(tested.shape[0]):
+        if not todo[c]:
+            continue
         tc = 0
+        w = 0
         for a in range(c * chunk, min(n, (c + 1) * chunk)):
             i = ref.order[a]
-            k, t = _rows_of(i, g, ref, ts, False, 0, out)
+            k, t, w = _rows_of(i, g, ref, ts, rec, wstart[c], wcap[c], w)
             counts[i] = k
             tc += t
         tested[c] = tc
+        wneed[c] = w
 
 
 @pjit
-def fill(g, ref, ts, chunk, offsets, out):
-    """Pass 2: the pairs of reference point ``i`` from row ``offsets[i]``."""
-    n = ref.order.shape[0]
-    n_chunks = (n + chunk - 1) // chunk
-    for c in numba.prange(n_chunks):
-        for a in range(c * chunk, min(n, (c + 1) * chunk)):
-            i = ref.order[a]
-            _rows_of(i, g, ref, ts, True, offsets[i], out)
+def fill(g, ref, ts, rec, wstart, wneed, offsets, out):
+    """Pass 2: every chunk's records into the rows of their reference points."""
+    for c in numba.prange(wstart.shape[0]):
+        _fill_records(wstart[c], wstart[c] + wneed[c], g, ref, ts, offsets, rec, out)
 
 
 #: the parallel kernels of this module, compiled serially (same names)
