@@ -1726,31 +1726,36 @@ class _CrossQuery:
 
     def pass1(self, kern, g, ref, ts, counts, tested, chunk):
         """Pass 1 of a query (``query.count``) with its records in regions sized
-        from the last query's records per reference point (a chunk that needs
-        more is run again with room for them); (records, wstart, wneed)."""
+        from the last query's records per reference point; a chunk that needs
+        more is run again in a new region after all the others (theirs stay
+        where they are).  Returns (records, wstart, wneed)."""
         n_chunks = len(tested)
         n = len(counts)
         rows = np.minimum(chunk, n - chunk * np.arange(n_chunks))
         wcap = (rows * self.per_ref).astype(np.int64) + 64
+        wstart = np.zeros(n_chunks, np.int64)
+        np.cumsum(wcap[:-1], out=wstart[1:])
         todo = np.ones(n_chunks, np.bool_)
         wneed = np.zeros(n_chunks, np.int64)
+        end = int(wstart[-1] + wcap[-1])
         while True:
-            wstart = np.zeros(n_chunks, np.int64)
-            np.cumsum(wcap[:-1], out=wstart[1:])
-            size = int(wcap.sum())
             rec = self.records
-            if rec is None or len(rec.word) < size:
-                size += size // 8
-                rec = self.records = query.Rec(np.empty(size, np.uint64),
-                                               np.empty(size, np.int64),
-                                               np.empty(size, np.int64),
-                                               np.empty(size, np.int64))
-                todo[:] = True
+            if rec is None or len(rec.word) < end:
+                size = end + end // 8
+                grown = query.Rec(np.empty(size, np.uint64), np.empty(size, np.int64),
+                                  np.empty(size, np.int64), np.empty(size, np.int64))
+                if rec is not None and not todo.all():  # the regions made so far
+                    for old, new in zip(rec, grown, strict=True):
+                        new[:len(old)] = old
+                rec = self.records = grown
             kern.count(g, ref, ts, chunk, counts, tested, rec, wstart, wcap, wneed, todo)
             over = wneed > wcap
             if not over.any():
                 break
-            wcap = np.where(over, wneed + wneed // 8 + 64, wcap)
+            for c in np.flatnonzero(over):
+                wstart[c] = end
+                wcap[c] = wneed[c] + wneed[c] // 8 + 64
+                end += int(wcap[c])
             todo = over
         self.per_ref = max(1.0, float(wneed.sum()) / max(n, 1) * 1.25)
         return rec, wstart, wneed

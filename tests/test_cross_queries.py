@@ -488,3 +488,28 @@ def test_pairs_beyond_the_memory_available_are_refused(monkeypatch):
     x = np.random.default_rng(0).uniform(0, 1, (4000, 3))
     with pytest.raises(MemoryError, match="the query has 16000000 pairs"):
         NeighborSearch(2.0).query(x, x)
+
+
+def test_records_outgrowing_their_regions():
+    # a first query sizes the records' regions (few pairs per point); a second one
+    # needs far more in some chunks and none in others: the chunks that overflow
+    # run again in new regions, the others keep theirs
+    rng = np.random.default_rng(14)
+    box = [12.0, 12.0, 12.0, 90, 90, 90]
+    conf = rng.uniform(0, 12, (3000, 3))
+    s = ContactSearch(skin=0.0, quantities="PdS")
+    s.query(rng.uniform(0, 12, (1200, 3)), 0.0, conf, 0.05, box)
+    ref = rng.uniform(0, 12, (1200, 3))
+    rr = np.where(ref[:, 0] < 6.0, 0.0, 1.5)  # (chunks follow the columns: space)
+    got = as_dict_pds(s.query(ref, rr, conf, 0.05, box))
+    fresh = ContactSearch(skin=0.0, quantities="PdS")
+    fresh.query(ref[:1], 0.0, conf, 0.05, box)
+    fresh._cross.per_ref = 1e4  # (regions large enough at once)
+    want = as_dict_pds(fresh.query(ref, rr, conf, 0.05, box))
+    assert got == want and len(got) > 10000
+
+
+def as_dict_pds(res):
+    pairs, d, S = res
+    return {(int(a), int(b), *map(int, s)): float(x) for (a, b), x, s in zip(pairs, d, S,
+                                                                            strict=True)}
