@@ -1475,7 +1475,11 @@ class _Search:
         threads = self.n_threads
         if threads is None and n + m < _PARALLEL_MIN:
             threads = 1
-        with num_threads(threads) as threads:
+        serial = threads == 1 or (m < _PARALLEL_MIN and n < 2 * _QUERY_CHUNK)
+        # (serial kernels only: no thread setting, as small frames of update)
+        with num_threads(None if serial else threads) as threads:
+            if serial:
+                threads = 1
             gkern = grid.serial if threads == 1 or m < _PARALLEL_MIN else grid
             qkern = query.serial if threads == 1 or n < 2 * _QUERY_CHUNK else query
             t0 = time.perf_counter()
@@ -1517,7 +1521,11 @@ class _Search:
             uniform = scan_r[4] == scan_r[5] and scan_c[4] == scan_c[5]
             x2 = 0.0
             if uniform:
-                x2 = _square_bound((float(rr[0]) + float(rc[0])) + skin_s, strict)
+                thr = ((float(rr[0]) + float(rc[0])) + skin_s, strict)
+                memo = cq.square
+                if memo[0] != thr:
+                    memo = cq.square = (thr, _square_bound(*thr))
+                x2 = memo[1]
             lo2, hi2, dtol, exact = grid.frame_band(wext, kmax, cs_s.matrix, pbc_s,
                                                     cs_s.widths, range_s, range_s, x2)
             guard = _GUARD * (wext + range_s) + np.finfo(np.float64).tiny
@@ -1538,7 +1546,7 @@ class _Search:
             ref = query.Ref(xr, tr, kr, wr, rr, order)
             ts = query.Test(cs_s.matrix, pbc_s.copy(), bool(cs_s.diag), inv_w, float(skin_s),
                             strict, bool(uniform), float(x2), float(lo2), float(hi2), float(dtol),
-                            bool(exact), float(g.rs.max()), float(skin_s + guard + dtol),
+                            bool(exact), cq.rmax, float(skin_s + guard + dtol),
                             float(guard), gap)
             n_chunks = (n + _QUERY_CHUNK - 1) // _QUERY_CHUNK
             counts = np.empty(n, np.int64)
@@ -1610,6 +1618,8 @@ class _Search:
 #: reference points per chunk of a query's parallel passes (boundaries depend on
 #: the number of reference points only)
 _QUERY_CHUNK = 256
+#: ``todo`` of a query's one chunk (read by the kernel, never written)
+_ONE_CHUNK = np.ones(1, np.bool_)
 
 
 class _CrossQuery:
@@ -1633,6 +1643,7 @@ class _CrossQuery:
         self.out_now = 0
         self.bufs = {}  # the build's arrays, reused while the configuration's size stays
         self.records = None  # pass 1's records (query.Rec), grown as needed
+        self.square = (None, None)  # the last threshold and its squared bound
         self.per_ref = 16.0  # records per reference point to make room for
 
     def buffer(self, name, shape, dtype):
@@ -1718,6 +1729,7 @@ class _CrossQuery:
         self.wk = (float(wext), int(kmax))
         self.conf = conf
         self.conf_r = np.array(conf_r)
+        self.rmax = float(rs.max()) if m else 0.0
         self.scan = scan
         self.key = key
         self.range = rng
@@ -1731,11 +1743,16 @@ class _CrossQuery:
         where they are).  Returns (records, wstart, wneed)."""
         n_chunks = len(tested)
         n = len(counts)
-        rows = np.minimum(chunk, n - chunk * np.arange(n_chunks))
-        wcap = (rows * self.per_ref).astype(np.int64) + 64
-        wstart = np.zeros(n_chunks, np.int64)
-        np.cumsum(wcap[:-1], out=wstart[1:])
-        todo = np.ones(n_chunks, np.bool_)
+        if n_chunks == 1:  # (few reference points: no array arithmetic)
+            wcap = np.array([int(n * self.per_ref) + 64])
+            wstart = np.zeros(1, np.int64)
+            todo = _ONE_CHUNK
+        else:
+            rows = np.minimum(chunk, n - chunk * np.arange(n_chunks))
+            wcap = (rows * self.per_ref).astype(np.int64) + 64
+            wstart = np.zeros(n_chunks, np.int64)
+            np.cumsum(wcap[:-1], out=wstart[1:])
+            todo = np.ones(n_chunks, np.bool_)
         wneed = np.zeros(n_chunks, np.int64)
         end = int(wstart[-1] + wcap[-1])
         while True:
