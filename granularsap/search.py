@@ -1480,7 +1480,7 @@ class _Search:
         with num_threads(None if serial else threads) as threads:
             if serial:
                 threads = 1
-            gkern = grid.serial if threads == 1 or m < _PARALLEL_MIN else grid
+            gkern = grid.serial if threads == 1 else grid
             qkern = query.serial if threads == 1 or n < 2 * _QUERY_CHUNK else query
             t0 = time.perf_counter()
             if same and cq.key == key and cq.range <= 2.0 * range_s + 1e-300:
