@@ -36,12 +36,12 @@ the first slot of each bucket, about two slots a bucket) and a binary search
 inside one bucket (``common.lower_bound``, ``_upper``), then its candidates
 are tested in counted loops of up to 64 that build a bit mask of the pairs
 (no branch in their body: they vectorise), and only the bits of a superset
-are decided one by one.  This is the cell-list
-query of a kept grid (MDAnalysis's ``nsgrid``, Hockney and Eastwood's linked
-cells) on the column layout of the multi-SaP of Tracy, Buss and Woods (2009):
-a sweep and prune inside each cell of a spatial subdivision, here with the
-sweep replaced by a binary search because the reference points are not part
-of the sorted lists.
+are decided one by one.  This is the cell-list query of a kept grid
+(MDAnalysis's ``nsgrid``, Hockney and Eastwood's linked cells) on the column
+layout of the multi-SaP of Tracy, Buss and Woods (2009): a sweep and prune
+inside each cell of a spatial subdivision, here with the sweep's pointer walk
+replaced by a bucket lookup, because the reference points are not part of the
+sorted lists.
 
 *The arithmetic* is the one of ``grid.py`` (docs/cells.md, "Arithmetic") with
 two sets: a pair is in when ``D = (x_conf[j] - x_ref[i]) + S0 a + S1 b + S2
@@ -60,10 +60,11 @@ the first tests every candidate once and keeps, for every run of up to 64
 candidates that holds a pair, a record (the 64-bit mask of its pairs, the
 first slot, the reference point, the shift; ``grid._sweep_chunk``'s records),
 and counts each reference point's pairs; a prefix sum gives each its first
-row, and the second pass writes the pairs of the records there.  Chunk boundaries depend on the
-number of reference points only, and each reference point writes its own
-rows in the order of its visit, so the rows (grouped by reference index,
-ascending) never depend on the thread count.
+row, and the second pass writes the pairs of the records there.  Reference
+points are visited column by column (the grid's memory in order), in chunks
+whose boundaries depend on their number only; each writes its own rows in
+the order of its visit, so the rows (grouped by reference index, ascending)
+never depend on the thread count.
 """
 
 from __future__ import annotations
