@@ -513,3 +513,19 @@ def as_dict_pds(res):
     pairs, d, S = res
     return {(int(a), int(b), *map(int, s)): float(x) for (a, b), x, s in zip(pairs, d, S,
                                                                             strict=True)}
+
+
+def test_fastns_keeps_the_grid_of_its_coords():
+    from granularsap.mda import FastNS
+
+    rng = np.random.default_rng(15)
+    coords = rng.uniform(0, 10, (400, 3)).astype(np.float32)
+    box = np.array([10, 10, 10, 90, 90, 90], np.float32)
+    ns = FastNS(1.2, coords, box)
+    for k in range(3):
+        q = rng.uniform(0, 10, (20, 3)).astype(np.float32)
+        res = ns.search(q)
+        assert ns._cross.stats["grid"] == ("built" if k == 0 else "kept")
+        want = check_neighbor(q.astype(np.float64), coords.astype(np.float64), 1.2,
+                              box.astype(np.float64))
+        assert sorted(map(tuple, res.get_pairs().tolist())) == sorted(k_[:2] for k_ in want)
