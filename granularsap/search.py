@@ -42,7 +42,7 @@ from ._validate import as_coords, as_scalar, as_vector, check_n_threads
 from .cell import Cell
 from .geometry import FrameCell
 from .identity import PairIdentity, as_ids
-from .kernels import grid
+from .kernels import grid, query
 
 __all__ = ["ContactSearch", "NeighborSearch"]
 
@@ -480,6 +480,8 @@ class _Search:
         values = [*vars(self).values()]
         for buf in self._out_sets:
             values += buf.values()
+        if self._cross is not None:  # the cross-set query's grid and outputs
+            values += self._cross.arrays()
         for value in values:
             if isinstance(value, np.ndarray) and id(value) not in seen:
                 seen.add(id(value))
@@ -1442,6 +1444,453 @@ class _Search:
         return self._identity_state().carry(history, fill, out, clumps=clumps)
 
 
+    # -------------------------------------------------------- cross queries
+    _cross = None
+
+    def _query(self, reference, ref_r, configuration, conf_r, skin, box, pbc, copy, names):
+        """One cross-set query of validated inputs (``query`` of the subclasses):
+        pairs ``(i, j)`` of ``reference[i]`` and ``configuration[j]`` with ``d <=
+        (ref_r[i] + conf_r[j]) + skin``, the configuration's grid kept (see
+        ``_CrossQuery``).  ``names``: the argument names of messages (reference,
+        configuration, the range, the largest range, the smallest threshold)."""
+        t_start = time.perf_counter()
+        cq = self._cross
+        if cq is None:
+            cq = self._cross = _CrossQuery()
+        n, m = len(reference), len(configuration)
+        cs = self._cell_state(box, pbc)
+        minimum = self.periodic_images == "minimum"
+        strict = not self.include_cutoff
+        scan_r = _scan_frame(reference, ref_r, _NO_RADII)
+        if scan_r[0] >= 0:
+            raise ValueError(f"{names[0]} must be finite, got NaN or inf in row {scan_r[0]}")
+        same = (cq.conf is not None and len(cq.conf) == m and np.array_equal(cq.conf,
+                                                                              configuration)
+                and np.array_equal(cq.conf_r, conf_r))
+        scan_c = cq.scan if same else _scan_frame(configuration, conf_r, _NO_RADII)
+        if scan_c[0] >= 0:
+            raise ValueError(f"{names[1]} must be finite, got NaN or inf in row {scan_c[0]}")
+        rmax_r, rmax_c = (scan_r[5] if n else 0.0), (scan_c[5] if m else 0.0)
+        reach_max = rmax_r + rmax_c + skin
+        if cs.cell is not None and minimum:
+            widths = cs.widths
+            for c in cs.narrowest:
+                if reach_max > 0.5 * widths[c] * (1.0 + 1e-12):
+                    raise ValueError(
+                        f"{names[3]} {reach_max:.17g} exceeds half the smallest perpendicular "
+                        f"cell width {0.5 * widths[c]:.17g} (width {widths[c]:.17g} across cell "
+                        f"vector {c}); several periodic images of a pair would be in range. "
+                        "Use a larger cell (replicate it) or a smaller range, or "
+                        "periodic_images='all' to get every image with its shift")
+        q = self.quantities
+        times = {}
+        stats = {"query": True, "n_reference": n, "n_configuration": m, "threads": 1,
+                 "grid": "none", "grid_builds": cq.builds, "columns": (0, 0),
+                 "candidates_tested": 0, "pairs": 0, "seconds": times}
+        if n == 0 or m == 0:
+            buf = cq.outputs(0, ("d" in q, "D" in q, "S" in q))
+            times["total"] = time.perf_counter() - t_start
+            self.stats = stats
+            return self._query_results(buf, 0, n, np.zeros(n + 1, np.int64), copy)
+        big = max(scan_r[1], scan_c[1], cs.magnitude)
+        fine = min(scan_r[2], scan_c[2], cs.fine)
+        thr_min = scan_r[4] + scan_c[4] + skin
+        k = _frame_scale(big, fine, reach_max, thr_min, *names[2:])
+        scale = math.ldexp(1.0, k) if k else 1.0
+        fine_q = max(_exp2(fine) - 53, -1074) if math.isfinite(fine) else None
+        # tiny separations whose squares the scale lets underflow: recomputed
+        tiny = fine_q is not None and fine_q + _exp2(scale) - 1 < -480
+        cs_s = cs.scaled(scale) if scale != 1.0 else cs
+        xr, xc = reference, configuration
+        rr, rc, skin_s = ref_r, conf_r, skin
+        if scale != 1.0:
+            xr, xc, rr, rc, skin_s = xr * scale, xc * scale, rr * scale, rc * scale, skin * scale
+        range_s = reach_max * scale
+        key = (cs.key, scale)
+        threads = self.n_threads
+        if threads is None and n + m < _PARALLEL_MIN:
+            threads = 1
+        serial = threads == 1 or (m < _PARALLEL_MIN and n < 2 * _QUERY_CHUNK)
+        # (serial kernels only: no thread setting, as small frames of update)
+        with num_threads(None if serial else threads) as threads:
+            if serial:
+                threads = 1
+            gkern = grid.serial if threads == 1 else grid
+            qkern = query.serial if threads == 1 or n < 2 * _QUERY_CHUNK else query
+            t0 = time.perf_counter()
+            if same and cq.key == key and cq.range <= 2.0 * range_s + 1e-300:
+                stats["grid"] = "kept"
+            else:
+                # the grid keeps its own copy (the given array may be edited in place)
+                kept = cq.buffer("conf", configuration.shape, np.float64)
+                np.copyto(kept, configuration)
+                bad = cq.build(kept, conf_r, kept * scale if scale != 1.0 else kept, rc, cs_s,
+                               key, range_s, gkern, scan_c)
+                if bad >= 0:
+                    self._given = configuration
+                    self._raise_bad_named(bad, names[1])
+                stats["grid"] = "built"
+            g = cq.grid
+            t1 = time.perf_counter()
+            times["grid"] = t1 - t0
+            tr = np.empty((n, 3))
+            kr = np.empty((n, 3), np.int64)
+            wr = np.empty((n, 3))
+            bad, wext_r, kmax_r = gkern.wrap(xr, cs_s.hinv, cs_s.matrix, cs_s.diag, cs_s.pbc,
+                                             tr, kr, wr, int(min(_MAX_CHUNKS,
+                                                                 max(1, n // _CHUNK))))
+            if bad >= 0:
+                self._given = reference
+                self._raise_bad_named(bad, names[0])
+            wext = max(float(wext_r), cq.wk[0])
+            kmax = max(int(kmax_r), cq.wk[1])
+            pbc_s = cs_s.pbc
+            far = bool(_GUARD * wext > _far_scale(range_s, cs_s.min_periodic_width) * _FAR
+                       and not pbc_s.all() and (cs_s.diag or not pbc_s.any()))
+            if far:
+                # coordinates far beyond the range along open axes (``_build``): the
+                # band and the guard from the periodic lengths; open axes are not
+                # wrapped and their column edges are not trusted (no gap test)
+                wext = 2.0 * max((abs(float(cs_s.matrix[c, c])) for c in range(3) if pbc_s[c]),
+                                 default=0.0)
+            uniform = scan_r[4] == scan_r[5] and scan_c[4] == scan_c[5]
+            x2 = 0.0
+            if uniform:
+                thr = ((float(rr[0]) + float(rc[0])) + skin_s, strict)
+                memo = cq.square
+                if memo[0] != thr:
+                    memo = cq.square = (thr, _square_bound(*thr))
+                x2 = memo[1]
+            lo2, hi2, dtol, exact = grid.frame_band(wext, kmax, cs_s.matrix, pbc_s,
+                                                    cs_s.widths, range_s, range_s, x2)
+            guard = _GUARD * (wext + range_s) + np.finfo(np.float64).tiny
+            if pbc_s.any() and guard > 0.25 * cs_s.min_periodic_width:
+                raise ValueError(
+                    f"{names[0]} and {names[1]} up to {big!r} in magnitude: their rounding "
+                    f"(about {guard / scale:.3g}) exceeds a quarter of the cell width "
+                    f"{cs.min_periodic_width:.17g}; give coordinates nearer the cell")
+            inv_w = 1.0 / cs_s.widths
+            gap = pbc_s | (not far)  # (no gap test along open axes of a far frame)
+            if n > _QUERY_CHUNK:  # visited column by column (the grid's memory in order)
+                col = np.empty(n, np.int64)
+                gkern.columns_of(tr, np.array([g.lo0, g.lo1, 0.0]),
+                                 np.array([g.inv_f0, g.inv_f1, 0.0]), g.nb0, g.nb1, col)
+                order = np.argsort(col, kind="stable")
+            else:
+                order = np.arange(n, dtype=np.int64)
+            ref = query.Ref(xr, tr, kr, wr, rr, order)
+            ts = query.Test(cs_s.matrix, pbc_s.copy(), bool(cs_s.diag), inv_w, float(skin_s),
+                            strict, bool(uniform), float(x2), float(lo2), float(hi2), float(dtol),
+                            bool(exact), cq.rmax, float(skin_s + guard + dtol),
+                            float(guard), gap)
+            n_chunks = (n + _QUERY_CHUNK - 1) // _QUERY_CHUNK
+            counts = np.empty(n, np.int64)
+            tested = np.empty(n_chunks, np.int64)
+            dedup = (minimum and cs.cell is not None
+                     and 2.0 * reach_max >= cs.min_periodic_width * (1.0 - 1e-9))
+            want = ("d" in q or dedup or tiny, "D" in q, "S" in q or tiny)
+            t2 = time.perf_counter()
+            times["wrap"] = t2 - t1
+            rec, wstart, wneed = cq.pass1(qkern, g, ref, ts, counts, tested, _QUERY_CHUNK)
+            offsets = np.zeros(n + 1, np.int64)
+            np.cumsum(counts, out=offsets[1:])
+            total = int(offsets[-1])
+            t3 = time.perf_counter()
+            times["count"] = t3 - t2
+            _query_memory(total, q, self.layout)
+            buf = cq.outputs(total, want)
+            out = query.Out(buf["p"], buf["d"], buf["v"], buf["s"], *want)
+            if total:
+                qkern.fill(g, ref, ts, rec, wstart, wneed, offsets, out)
+            times["fill"] = time.perf_counter() - t3
+        if dedup and total:
+            total = _query_dedup(buf, total, m)
+            if total < offsets[-1]:
+                offsets = np.searchsorted(buf["p"][:total, 0], np.arange(n + 1)).astype(np.int64)
+        if total and (scale != 1.0 or tiny):
+            d, v = buf["d"][:total], buf["v"][:total]
+            if scale != 1.0:
+                inv = 1.0 / scale
+                d *= inv
+                v *= inv
+            if tiny:
+                rows = np.flatnonzero(d < _TINY_D / scale) if fine_q + k >= -1074 else (
+                    np.arange(total))
+                if len(rows):
+                    _query_tiny(reference, configuration, cs, buf["p"], buf["s"], d, v, rows)
+        times["total"] = time.perf_counter() - t_start
+        stats.update(threads=threads, grid_builds=cq.builds, columns=(g.nb0, g.nb1),
+                     candidates_tested=int(tested.sum()), pairs=total)
+        self.stats = stats
+        return self._query_results(buf, total, n, offsets, copy)
+
+    def _raise_bad_named(self, bad, name):
+        raise ValueError(
+            f"{name} row {bad} ({self._given[bad].tolist()}) lies about "
+            f"{grid.WRAP_LIMIT:.3g} cell lengths or more outside the cell along a "
+            "periodic axis: wrapping it into the cell would keep no significant digit. "
+            "Give coordinates within 2**52 cell lengths of the cell")
+
+    def _query_results(self, buf, total, n, offsets, copy):
+        p = buf["p"][:total] if total else np.empty((0, 2), np.int64)
+        if self.layout == "csr":
+            result = (offsets, p[:, 1])
+            if "d" in self.quantities:
+                result += (buf["d"][:total] if total else np.empty(0),)
+        else:
+            pick = {"P": lambda: p, "i": lambda: p[:, 0], "j": lambda: p[:, 1],
+                    "d": lambda: buf["d"][:total] if total else np.empty(0),
+                    "D": lambda: buf["v"][:total] if total else np.empty((0, 3)),
+                    "S": lambda: buf["s"][:total] if total else np.empty((0, 3), np.int64)}
+            result = tuple(pick[c]() for c in self.quantities)
+        if copy:
+            result = tuple(np.array(r) for r in result)
+        return result[0] if len(result) == 1 else result
+
+
+# ----------------------------------------------------------- cross queries
+
+#: reference points per chunk of a query's parallel passes (boundaries depend on
+#: the number of reference points only)
+_QUERY_CHUNK = 256
+#: ``todo`` of a query's one chunk (read by the kernel, never written)
+_ONE_CHUNK = np.ones(1, np.bool_)
+
+
+class _CrossQuery:
+    """The cross-set query of a search (``NeighborSearch.query``,
+    ``ContactSearch.query``): the configuration's column grid, kept between
+    queries while the configuration, its radii, the cell and the frame's scale
+    are the same, and the query's output buffers (two sets that alternate).
+
+    The kernels are ``kernels/query.py``; the grid is the self-search's
+    (``grid.wrap``, ``columns_of``, ``counting_sort``, ``sort_columns``,
+    ``gather_columns``), built on the configuration alone."""
+
+    def __init__(self):
+        self.conf = None  # the configuration as given (a copy), its radii, and
+        self.conf_r = None  # the key of the cell and scale the grid was built for
+        self.key = None
+        self.range = 0.0
+        self.perm = None
+        self.builds = 0
+        self.out_sets = [{}, {}]
+        self.out_now = 0
+        self.bufs = {}  # the build's arrays, reused while the configuration's size stays
+        self.records = None  # pass 1's records (query.Rec), grown as needed
+        self.square = (None, None)  # the last threshold and its squared bound
+        self.per_ref = 16.0  # records per reference point to make room for
+
+    def buffer(self, name, shape, dtype):
+        """The build's array ``name``, reused when its shape and type fit."""
+        arr = self.bufs.get(name)
+        if arr is None or arr.shape != shape or arr.dtype != dtype:
+            arr = self.bufs[name] = np.empty(shape, dtype)
+        return arr
+
+    def build(self, conf, conf_r, xs_scaled, rs_scaled, cs, key, rng, kern, scan):
+        """The column grid of the configuration ``conf`` (a copy the grid keeps) with
+        radii ``conf_r`` (``xs_scaled``, ``rs_scaled``: both times the frame's
+        scale; ``rng`` the range the columns are sized for).  Returns the first
+        row that cannot be wrapped, or -1."""
+        m = len(xs_scaled)
+        self.conf = None  # (invalid until the build is done)
+        t = self.buffer("t", (m, 3), np.float64)
+        k = self.buffer("k", (m, 3), np.int64)
+        w = self.buffer("w", (m, 3), np.float64)
+        bad, wext, kmax = kern.wrap(xs_scaled, cs.hinv, cs.matrix, cs.diag, cs.pbc, t, k, w,
+                                    int(min(_MAX_CHUNKS, max(1, m // _CHUNK))))
+        if bad >= 0:
+            return bad
+        pbc, widths = cs.pbc, cs.widths
+        lo = np.zeros(3)
+        span = np.ones(3)
+        for c in range(2):
+            if not pbc[c]:
+                lo[c] = t[:, c].min()
+                span[c] = t[:, c].max() - lo[c]
+        nb = [1, 1]
+        inv_f = np.zeros(2)
+        f = np.zeros(2)
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            delta = rng / widths
+            for c in range(2):
+                if span[c] > 0:
+                    ratio = span[c] / delta[c] if delta[c] > 0 else math.inf
+                    nb[c] = int(max(1.0, math.floor(min(ratio, float(_MAX_BINS)))))
+            while nb[0] * nb[1] > max(1, m) and max(nb) > 1:
+                c = 0 if nb[0] >= nb[1] else 1
+                nb[c] = max(1, nb[c] // 2)
+            for c in range(2):
+                f[c] = float(span[c]) / nb[c]
+                inv_f[c] = nb[c] / span[c] if span[c] > 0 else 0.0
+                if not math.isfinite(inv_f[c]):  # a subnormal span: one column
+                    nb[c], inv_f[c], f[c] = 1, 0.0, 0.0
+        nb0, nb1 = nb
+        ncol = nb0 * nb1
+        col = self.buffer("col", (m,), np.int64)
+        kern.columns_of(t, lo, np.array([inv_f[0], inv_f[1], 0.0]), nb0, nb1, col)
+        fresh = self.perm is None or len(self.perm) != m
+        prev = np.arange(m, dtype=np.int64) if fresh else self.perm
+        start = np.empty(ncol + 1, np.int64)
+        perm = self.buffer("perm_spare", (m,), np.int64)
+        segments = 1 if kern is grid.serial else min(numba.get_num_threads(),
+                                                       max(1, m // (4 * ncol + 1)))
+        kern.counting_sort(col, prev, ncol, start, perm, np.empty((segments, ncol), np.int64))
+        kern.sort_columns(start, ncol, perm, t, 2, fresh)
+        tz, xs, ys, zs, rs = (self.buffer(name, (m,), np.float64)
+                              for name in ("tz", "xs", "ys", "zs", "rs"))
+        kern.gather_columns(perm, t, w, rs_scaled, _NO_ENTRIES, tz, xs, ys, zs, rs,
+                            _NO_ENTRIES, False)
+        if kmax == 0:  # (nothing was wrapped: zeros, pages the kernels only read)
+            ks = np.zeros((m, 3), np.int64)
+        else:
+            ks = np.take(k, perm, axis=0, out=self.buffer("ks", (m, 3), np.int64))
+        # sweep buckets: about two slots a bucket (``query.zindex``)
+        nz = int(max(1, min(m // (2 * ncol), 1 << 16)))
+        zlo, zspan = (0.0, 1.0) if pbc[2] else (float(t[:, 2].min()), float(np.ptp(t[:, 2])))
+        with np.errstate(over="ignore", divide="ignore"):
+            inv_bz = nz / zspan if zspan > 0 else 0.0
+        if not math.isfinite(inv_bz):
+            nz, inv_bz = 1, 0.0
+        zidx = self.buffer("zidx", (ncol * (nz + 1),), np.int64)
+        kq = query.serial if kern is grid.serial else query
+        kq.zindex(start, tz, zidx, nz, zlo, inv_bz)
+        self.grid = query.Grid(start, nb0, nb1, float(lo[0]), float(lo[1]), float(inv_f[0]),
+                               float(inv_f[1]), float(f[0]), float(f[1]), tz, xs, ys, zs, rs,
+                               ks, perm, xs_scaled, zidx, nz, zlo, float(inv_bz))
+        self.bufs["perm_spare"] = self.perm if not fresh else None
+        self.perm = perm
+        self.wk = (float(wext), int(kmax))
+        self.conf = conf
+        self.conf_r = np.array(conf_r)
+        self.rmax = float(rs.max()) if m else 0.0
+        self.scan = scan
+        self.key = key
+        self.range = rng
+        self.builds += 1
+        return -1
+
+    def pass1(self, kern, g, ref, ts, counts, tested, chunk):
+        """Pass 1 of a query (``query.count``) with its records in regions sized
+        from the last query's records per reference point; a chunk that needs
+        more is run again in a new region after all the others (theirs stay
+        where they are).  Returns (records, wstart, wneed)."""
+        n_chunks = len(tested)
+        n = len(counts)
+        if n_chunks == 1:  # (few reference points: no array arithmetic)
+            wcap = np.array([int(n * self.per_ref) + 64])
+            wstart = np.zeros(1, np.int64)
+            todo = _ONE_CHUNK
+        else:
+            rows = np.minimum(chunk, n - chunk * np.arange(n_chunks))
+            wcap = (rows * self.per_ref).astype(np.int64) + 64
+            wstart = np.zeros(n_chunks, np.int64)
+            np.cumsum(wcap[:-1], out=wstart[1:])
+            todo = np.ones(n_chunks, np.bool_)
+        wneed = np.zeros(n_chunks, np.int64)
+        end = int(wstart[-1] + wcap[-1])
+        while True:
+            rec = self.records
+            if rec is None or len(rec.word) < end:
+                size = end + end // 8
+                grown = query.Rec(np.empty(size, np.uint64), np.empty(size, np.int64),
+                                  np.empty(size, np.int64), np.empty(size, np.int64))
+                if rec is not None and not todo.all():  # the regions made so far
+                    for old, new in zip(rec, grown, strict=True):
+                        new[:len(old)] = old
+                rec = self.records = grown
+            kern.count(g, ref, ts, chunk, counts, tested, rec, wstart, wcap, wneed, todo)
+            over = wneed > wcap
+            if not over.any():
+                break
+            for c in np.flatnonzero(over):
+                wstart[c] = end
+                wcap[c] = wneed[c] + wneed[c] // 8 + 64
+                end += int(wcap[c])
+            todo = over
+        self.per_ref = max(1.0, float(wneed.sum()) / max(n, 1) * 1.25)
+        return rec, wstart, wneed
+
+    def arrays(self):
+        """Every array the query keeps (for ``nbytes``)."""
+        out = [v for v in vars(self).values() if isinstance(v, np.ndarray)]
+        out += [v for v in self.bufs.values() if isinstance(v, np.ndarray)]
+        if self.records is not None:
+            out += list(self.records)
+        grid_ = getattr(self, "grid", None)
+        if grid_ is not None:
+            out += [v for v in grid_ if isinstance(v, np.ndarray)]
+        for buf in self.out_sets:
+            out += [v for v in buf.values() if isinstance(v, np.ndarray)]
+        return out
+
+    def outputs(self, total, want):
+        """This query's output set for ``total`` rows (``want``: d, D, S)."""
+        self.out_now = 1 - self.out_now
+        buf = self.out_sets[self.out_now]
+        if buf.get("cap", -1) < total or buf.get("want") != want:
+            cap = max(256, total + total // 8)
+            buf.update(cap=cap, want=want, p=np.empty((cap, 2), np.int64),
+                       d=np.empty(cap if want[0] else 0),
+                       v=np.empty((cap if want[1] else 0, 3)),
+                       s=np.empty((cap if want[2] else 0, 3), np.int64))
+        return buf
+
+
+def _query_tiny(reference, configuration, cs, pairs, shifts, d, v, rows):
+    """Distances and vectors of ``rows`` of a query recomputed from the given
+    positions and the lattice shifts (``_Search._exact_small`` with two sets):
+    exact where the frame's scale let squares of tiny separations underflow."""
+    p = pairs[rows]
+    vec = configuration[p[:, 1]] - reference[p[:, 0]]
+    if cs.cell is not None:
+        s = shifts[rows]
+        for c in range(3):
+            vec += s[:, c:c + 1] * cs.cell[c]
+    if len(v):
+        v[rows] = vec
+    if len(d):
+        e = np.frexp(np.abs(vec).max(axis=1))[1]
+        u = np.ldexp(vec, -e[:, None])
+        d[rows] = np.ldexp(np.sqrt(u[:, 0] * u[:, 0] + u[:, 1] * u[:, 1] + u[:, 2] * u[:, 2]),
+                           e)
+
+
+def _query_memory(total, quantities, layout):
+    """MemoryError when a query's ``total`` pairs (counted by its first pass, so
+    exactly) cannot be written in the memory available."""
+    need = total * _memory.bytes_per_pair(quantities, layout)
+    room = _memory.available_memory() if need > (256 << 20) else None
+    if room is not None and need > room:
+        raise MemoryError(
+            f"the query has {total} pairs, which need {need / 2**30:.3g} GiB of outputs "
+            f"({_memory.bytes_per_pair(quantities, layout)} bytes per pair for quantities "
+            f"{quantities!r}) but about {room / 2**30:.3g} GiB is available; query fewer "
+            "reference points at a time or with a smaller range")
+
+
+def _query_dedup(buf, total, m):
+    """Pairs of a minimum-image query whose two images tie at half a cell width:
+    keep the nearest (the first of equal ones); returns the rows kept, in order."""
+    p = buf["p"][:total]
+    key = p[:, 0] * max(m, 1) + p[:, 1]
+    if len(np.unique(key)) == total:
+        return total
+    d = buf["d"][:total]
+    order = np.lexsort((d, key))
+    first = np.ones(total, bool)
+    first[1:] = key[order][1:] != key[order][:-1]
+    keep = np.sort(order[first])
+    k = len(keep)
+    p[:k] = p[keep]
+    for name in ("d", "v", "s"):
+        arr = buf[name]
+        if len(arr):
+            arr[:k] = arr[:total][keep]
+    return k
+
+
 class NeighborSearch(_Search):
     """Pairs of particles within ``cutoff`` over a sequence of frames.
 
@@ -1519,6 +1968,9 @@ class NeighborSearch(_Search):
     _what = "cutoff"
     #: names of the range, the largest range and the smallest threshold in messages
     _names = ("cutoff", "cutoff + rebuild_margin", "cutoff")
+    #: the names of ``query``'s messages: the two sets, the range, the largest
+    #: range, the smallest threshold
+    _query_names = ("reference", "configuration", "cutoff", "cutoff", "cutoff")
 
     def __init__(self, cutoff, *, rebuild_margin=0.0, quantities="Pd", layout="pairs",
                  periodic_images="minimum", include_cutoff=True, n_threads=None, path="auto",
@@ -1569,6 +2021,65 @@ class NeighborSearch(_Search):
         self._scan = scan
         return self._run_tracked(positions, self._half, self._rest, box, pbc, None, copy, ids)
 
+    def query(self, reference, configuration, box=None, *, pbc=None, copy=False):
+        """Pairs of a reference point and a configuration point within ``cutoff``.
+
+        A cross-set query: every pair ``(i, j)`` of ``reference[i]`` and
+        ``configuration[j]`` with ``d <= cutoff`` (``<`` with
+        ``include_cutoff=False``), each pair once (no symmetry: ``(i, j)`` is
+        not ``(j, i)``), minimum image or, with ``periodic_images="all"``, every
+        image within range.  The search builds a column grid on the
+        configuration and keeps it while the same configuration (the same
+        values), the same cell and the same frame scale come back: a grid is
+        built once and queried many times (MDAnalysis's ``FastNS(cutoff,
+        coords, box).search(query)``), a query costing only the visits of its
+        own reference points.  ``stats["grid"]`` says ``"built"`` or ``"kept"``.
+        A query does not touch what :meth:`update` keeps (its Verlet list,
+        identity), and ``rebuild_margin`` plays no part in it.
+
+        Parameters
+        ----------
+        reference : (n, 3) array_like of float
+            Query points; need not be wrapped.
+        configuration : (m, 3) array_like of float
+            Points the grid is built on; need not be wrapped.
+        box, pbc, copy
+            As for :meth:`update`.
+
+        Returns
+        -------
+        tuple of arrays (or one array) as chosen by ``quantities``: ``'P'``
+        ``(k, 2)`` int64 pairs ``(reference index, configuration index)``;
+        ``'i'``, ``'j'`` their columns; ``'d'`` distances; ``'D'`` vectors from
+        ``reference[i]`` to the image of ``configuration[j]``; ``'S'`` integer
+        lattice shifts with ``D = configuration[j] - reference[i] + S @ cell``
+        (the arithmetic of docs/cells.md, added in that order).  Rows are
+        grouped by reference index, ascending; inside a group they come in
+        the order the grid was visited, which depends on the input only, never
+        on the thread count (sort them if an order by configuration index is
+        needed).  ``layout="csr"`` returns
+        ``(offsets (n + 1,), configuration indices[, distances])`` instead.
+        Views of buffers the search owns, valid until the query after next
+        (``copy=True`` for copies).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from granularsap import NeighborSearch
+        >>> search = NeighborSearch(1.5)
+        >>> conf = np.array([[0.5, 0, 0], [4.5, 0, 0], [2.0, 2.0, 2.0]])
+        >>> pairs, d = search.query([[0.0, 0, 0]], conf, box=[5, 5, 5, 90, 90, 90])
+        >>> sorted(pairs.tolist()), d.tolist()  # rows of one point: in the order visited
+        ([[0, 0], [0, 1]], [0.5, 0.5])
+        >>> pairs, d = search.query([[2.0, 2.0, 3.0]], conf, box=[5, 5, 5, 90, 90, 90])
+        >>> pairs.tolist(), search.stats["grid"]
+        ([[0, 2]], 'kept')
+        """
+        ref = as_coords(reference, "reference", check_finite=False)
+        conf = as_coords(configuration, "configuration", check_finite=False)
+        return self._query(ref, np.zeros(len(ref)), conf, np.zeros(len(conf)), self.cutoff,
+                           box, pbc, copy, self._query_names)
+
 
 class ContactSearch(_Search):
     """Sphere contacts ``d <= r_i + r_j + skin`` over a sequence of frames.
@@ -1613,6 +2124,10 @@ class ContactSearch(_Search):
     _names = ("the smallest contact distance 2 * min(radii) + skin",
               "the interaction range 2 * max(radii) + skin + rebuild_margin",
               "2 * min(radii) + skin")
+    _query_names = ("reference", "configuration",
+                    "the smallest contact distance min(ref_radii) + min(conf_radii) + skin",
+                    "the interaction range max(ref_radii) + max(conf_radii) + skin",
+                    "min(ref_radii) + min(conf_radii) + skin")
 
     def __init__(self, *, skin=0.0, rebuild_margin=0.0, quantities="P", layout="pairs",
                  periodic_images="minimum", include_cutoff=True, n_threads=None, path="auto",
@@ -1657,6 +2172,46 @@ class ContactSearch(_Search):
         ids = self._check_ids(ids, n)
         self._scan = scan
         return self._run_tracked(positions, radii, self.skin, box, pbc, labels, copy, ids)
+
+    def query(self, reference, ref_radii, configuration, conf_radii, box=None, *, pbc=None,
+              copy=False):
+        """Contacts ``d <= ref_radii[i] + conf_radii[j] + skin`` of two sets.
+
+        A cross-set query, as :meth:`NeighborSearch.query`: every pair ``(i,
+        j)`` of ``reference[i]`` and ``configuration[j]`` in contact, each once,
+        the threshold summed ``(ref_radii[i] + conf_radii[j]) + skin``; the
+        configuration's grid is kept while the configuration, its radii, the
+        cell and the frame scale come back.  No clump labels.
+
+        Parameters
+        ----------
+        reference : (n, 3) array_like of float
+        ref_radii : (n,) array_like of float or float
+            Non-negative radii of the reference spheres (a scalar applies to all).
+        configuration : (m, 3) array_like of float
+        conf_radii : (m,) array_like of float or float
+        box, pbc, copy
+            As for :meth:`update`.
+
+        Returns
+        -------
+        As :meth:`NeighborSearch.query`: pairs ``(reference index,
+        configuration index)``, grouped by reference index.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from granularsap import ContactSearch
+        >>> search = ContactSearch(skin=0.1, quantities="Pd")
+        >>> pairs, d = search.query([[0.0, 0, 0]], 1.0, [[1.5, 0, 0], [3.0, 0, 0]], [0.5, 1.0])
+        >>> pairs.tolist(), d.tolist()
+        ([[0, 0]], [1.5])
+        """
+        ref = as_coords(reference, "reference", check_finite=False)
+        conf = as_coords(configuration, "configuration", check_finite=False)
+        rr = as_radii(ref_radii, len(ref), "ref_radii")
+        rc = as_radii(conf_radii, len(conf), "conf_radii")
+        return self._query(ref, rr, conf, rc, self.skin, box, pbc, copy, self._query_names)
 
 
 def as_radii(radii, n, name="radii"):

@@ -36,7 +36,7 @@ GROUPS = {
                 "neighbor_pairs, clump_contacts",
     "search": "NeighborSearch and ContactSearch beyond those: Verlet lists (rebuild_margin), "
               "vectors and shifts, layout='csr', periodic_images='all', identity=True "
-              "(and ContactIdentity)",
+              "(and ContactIdentity), cross-set queries (query)",
     "boxes": "box_overlaps and SweepAndPrune",
     "dropins": "granularsap.mda (capped_distance, self_capped_distance, FastNS, Contacts) "
                "and granularsap.ase (neighbor_list, NeighborList)",
@@ -275,6 +275,7 @@ def _warm_search():
                 granularsap.ContactSearch(skin=0.3, periodic_images="all", quantities=q,
                                           n_threads=nt).update(pos, radii, box)
         _warm_identity(pos, radii, clumps, boxes, nt, rng)
+        _warm_queries(pos, radii, nt)
 
 
 def _warm_identity(pos, radii, clumps, boxes, nt, rng):
@@ -353,6 +354,28 @@ def _slab(n, seed=1):
     return pos, width, length
 
 
+def _warm_queries(pos, radii, nt):
+    """The engine's cross-set queries (``NeighborSearch.query``,
+    ``ContactSearch.query``), which the drop-ins' cross searches and ASE's
+    cutoffs many times the cell run: serial passes for a few query points,
+    parallel ones for many (with two threads), in every kind of cell."""
+    import numpy as np
+
+    import granularsap
+
+    side = 4.0 * (len(pos) / 64) ** (1 / 3)
+    cells = (None, np.diag([side] * 3), granularsap.Cell.from_dimensions(
+        [side, side, side, 80, 95, 85]), granularsap.Cell(np.diag([side] * 3),
+                                                          pbc=(True, True, False)))
+    for box in cells:
+        for ref in (pos[:10], pos):
+            granularsap.NeighborSearch(0.6, quantities="PdDS", n_threads=nt).query(
+                ref, pos, box)
+            granularsap.ContactSearch(skin=0.05, quantities="ijS", periodic_images="all",
+                                      n_threads=nt).query(ref, radii[:len(ref)], pos, radii,
+                                                          box)
+
+
 def _warm_dropins():
     import numpy as np
 
@@ -385,6 +408,8 @@ def _warm_dropins():
                             n_threads=nt)
             ns.self_search()
             ns.search(x32[:10])
+            ns.search(x32)  # many query points: the parallel passes of a query
+        _warm_queries(pos, radii, nt)
         try:
             from . import ase as gase
             from .ase.neighborlist import NeighborList

@@ -18,10 +18,9 @@ its binning).  Cutoffs are strict (``d < cutoff``), as in ASE.
 Cutoffs larger than the cell are handled like ASE: every periodic image within
 range is returned with its shift ``S``, so ``D = positions[j] - positions[i] +
 S @ cell``; atoms outside the cell need not be wrapped.  When the cutoff is
-several times the cell (the images of a periodic box around each atom would
-outnumber its neighbours many times over), every pair's images are tested
-directly instead of through ghost images, so memory stays proportional to the
-output (``_all_image_pairs``).
+several times the cell, the full list (both ways) comes straight from the
+engine's cross-set query of the atoms against themselves
+(``ContactSearch.query``, every image) instead of a half list mirrored.
 
 Stricter than ASE: a per-atom cutoff list must have exactly one entry per
 atom (ASE silently ignores extra entries, for example two cutoffs for a
@@ -35,13 +34,9 @@ in dict cutoffs to atomic numbers).
 
 from __future__ import annotations
 
-import math
-
-import numba
 import numpy as np
 
 from .. import periodic
-from .._numba import jit, num_threads, pjit
 from .._validate import as_coords, check_n_threads
 from ..search import ContactSearch
 from ..search import as_radii as _as_radii
@@ -65,130 +60,17 @@ def _check_quantities(quantities):
 # ---------------------------------------------------------------------------
 # every image of every pair: cutoffs many times the cell
 
-#: image-box factor prod_k (1 + 2 reach / w_k) above which every pair is tested
-#: directly: the ghost-image search's candidates grow like this factor times
-#: the output, the direct test's memory is the output
+#: image-box factor prod_k (1 + 2 reach / w_k) above which the full list comes
+#: straight from the engine's cross-set query of the atoms against themselves
+#: (both ways at once) instead of the half list mirrored: the list of every
+#: image is then many times the atoms' count
 _IMAGE_FACTOR_MAX = 16.0
-
-#: pair tests below which the serial kernel runs
-_PARALLEL_MIN = 1 << 15
-
-
-@jit
-def _image_rows(r_lo, r_hi, pos, frac, cell, widths, pbc, rad, use_table, table, numbers,
-                slack, write, o, out_a, out_b, out_s):
-    """Image pairs ``(i, j, S)``, ``r_lo <= i < r_hi``, ``j >= i``, with
-    ``|pos[j] - pos[i] + S @ cell| <= reach_ij + slack``; for ``i == j`` only
-    lexicographically positive ``S``.  Written from ``o`` if ``write``; returns
-    how many.
-
-    The images tried along periodic axis ``k`` are those whose extent across
-    face ``k``, ``|s_k + S_k| * w_k`` (``s`` the fractional separation), does not
-    exceed the reach: a lower bound on the distance, so none is missed.
-    """
-    n = pos.shape[0]
-    count = 0
-    lo = np.zeros(3, np.int64)
-    hi = np.zeros(3, np.int64)
-    for i in range(r_lo, r_hi):
-        for j in range(i, n):
-            if use_table:
-                reach = table[numbers[i], numbers[j]] + slack
-            else:
-                reach = rad[i] + rad[j] + slack
-            for k in range(3):
-                if pbc[k]:
-                    ds = frac[j, k] - frac[i, k]
-                    lo[k] = math.ceil(-reach / widths[k] - ds)
-                    hi[k] = math.floor(reach / widths[k] - ds)
-                else:
-                    lo[k] = 0
-                    hi[k] = 0
-            dx = pos[j, 0] - pos[i, 0]
-            dy = pos[j, 1] - pos[i, 1]
-            dz = pos[j, 2] - pos[i, 2]
-            r2 = reach * reach
-            for n0 in range(lo[0], hi[0] + 1):
-                for n1 in range(lo[1], hi[1] + 1):
-                    for n2 in range(lo[2], hi[2] + 1):
-                        if i == j and (n0 < 0 or (n0 == 0 and (n1 < 0 or (
-                                n1 == 0 and n2 <= 0)))):
-                            continue
-                        x = dx + n0 * cell[0, 0] + n1 * cell[1, 0] + n2 * cell[2, 0]
-                        y = dy + n0 * cell[0, 1] + n1 * cell[1, 1] + n2 * cell[2, 1]
-                        z = dz + n0 * cell[0, 2] + n1 * cell[1, 2] + n2 * cell[2, 2]
-                        if x * x + y * y + z * z <= r2:
-                            if write:
-                                out_a[o + count] = i
-                                out_b[o + count] = j
-                                out_s[o + count, 0] = n0
-                                out_s[o + count, 1] = n1
-                                out_s[o + count, 2] = n2
-                            count += 1
-    return count
-
-
-@pjit
-def _image_parallel(bounds, pos, frac, cell, widths, pbc, rad, use_table, table, numbers,
-                    slack, write, offsets, counts, out_a, out_b, out_s):
-    """``_image_rows`` over the row chunks ``bounds[c]:bounds[c + 1]``."""
-    for c in numba.prange(bounds.shape[0] - 1):
-        counts[c] = _image_rows(bounds[c], bounds[c + 1], pos, frac, cell, widths, pbc, rad,
-                                use_table, table, numbers, slack, write, offsets[c], out_a,
-                                out_b, out_s)
 
 
 def _image_factor(reach, cellm, pbc):
     """``prod_k (1 + 2 reach / w_k)`` over the periodic axes."""
     widths = periodic.perpendicular_widths(cellm)
     return float(np.prod(1.0 + 2.0 * reach / widths[pbc]))
-
-
-def _all_image_pairs(positions, cellm, cell_k, pbc, rad, table, numbers, slack, n_threads):
-    """Every image pair within reach by direct test (``a <= b``, shifts ``S``).
-
-    Two passes, count then fill at prefix-sum offsets over row chunks of about
-    equal work, so memory is the output and the order does not depend on the
-    thread count.  ``cell_k`` holds the caller's cell vectors (zero along open
-    axes allowed), ``cellm`` the completed cell used for fractional coordinates.
-    """
-    n = len(positions)
-    pos = np.ascontiguousarray(positions, dtype=np.float64)
-    frac = np.ascontiguousarray(periodic.fractional(pos, cellm))
-    widths = np.ascontiguousarray(periodic.perpendicular_widths(cellm))
-    cell_k = np.ascontiguousarray(cell_k, dtype=np.float64)
-    pbc_k = np.ascontiguousarray(pbc, dtype=np.bool_)
-    use_table = table is not None
-    table_k = np.ascontiguousarray(table if use_table else np.zeros((1, 1)))
-    numbers_k = np.ascontiguousarray(numbers if use_table else np.zeros(n, np.int64),
-                                     dtype=np.int64)
-    rad_k = np.ascontiguousarray(rad, dtype=np.float64)
-    args = (pos, frac, cell_k, widths, pbc_k, rad_k, use_table, table_k, numbers_k,
-            float(slack))
-    ei = np.empty(0, np.int64)
-    es = np.empty((0, 3), np.int64)
-    with num_threads(n_threads) as threads:
-        if n * (n + 1) // 2 < _PARALLEL_MIN or threads <= 1:
-            k = _image_rows(0, n, *args, False, 0, ei, ei, es)
-            a, b, s = np.empty(k, np.int64), np.empty(k, np.int64), np.empty((k, 3), np.int64)
-            if k:
-                _image_rows(0, n, *args, True, 0, a, b, s)
-            return a, b, s
-        chunks = int(min(8 * threads, n))
-        cum = np.concatenate([[0.0], np.cumsum(np.arange(n, 0, -1, dtype=np.float64))])
-        bounds = np.searchsorted(cum, np.linspace(0.0, cum[-1], chunks + 1)).astype(np.int64)
-        bounds[0], bounds[-1] = 0, n
-        bounds = np.unique(bounds)
-        counts = np.zeros(len(bounds) - 1, np.int64)
-        zero = np.zeros(len(bounds) - 1, np.int64)
-        _image_parallel(bounds, *args, False, zero, counts, ei, ei, es)
-        offsets = np.zeros(len(counts), np.int64)
-        np.cumsum(counts[:-1], out=offsets[1:])
-        k = int(counts.sum())
-        a, b, s = np.empty(k, np.int64), np.empty(k, np.int64), np.empty((k, 3), np.int64)
-        if k:
-            _image_parallel(bounds, *args, True, offsets, counts, a, b, s)
-    return a, b, s
 
 
 def _pair_cutoff_table(cutoff, numbers):
@@ -283,15 +165,18 @@ def primitive_neighbor_list(quantities, pbc, cell, positions, cutoff, numbers=No
         cellm = periodic.as_cell(cell_arr, "cell", pbc=pbc)
     else:
         cellm = None
-    if cellm is not None and _image_factor(2.0 * rad.max() + slack, cellm,
-                                           pbc) > _IMAGE_FACTOR_MAX:
-        # a cutoff many times the cell: test every pair's images directly
-        a, b, shift = _all_image_pairs(positions, cellm, cell_arr, pbc, rad, table,
-                                       numbers if table is not None else None, slack,
-                                       n_threads)
+    search = ContactSearch(skin=slack, periodic_images="all", quantities="ijS",
+                           n_threads=n_threads)
+    full = cellm is not None and _image_factor(2.0 * rad.max() + slack, cellm,
+                                               pbc) > _IMAGE_FACTOR_MAX
+    if full:
+        # a cutoff many times the cell: the full list at once, from the cross-set
+        # query of the atoms against themselves (every image of every pair, both
+        # ways: no mirror), less each atom with itself at shift 0
+        a, b, shift = search.query(positions, rad, positions, rad, cellm, pbc=pbc)
+        other = (a != b) | shift.any(axis=1)
+        a, b, shift = a[other], b[other], shift[other]
     else:
-        search = ContactSearch(skin=slack, periodic_images="all", quantities="ijS",
-                               n_threads=n_threads)
         a, b, shift = search.update(positions, rad, cellm, pbc=pbc)
     D = positions[b] - positions[a] + shift.dot(cell_arr)
     d = np.sqrt(np.sum(D * D, axis=1))
@@ -304,11 +189,14 @@ def primitive_neighbor_list(quantities, pbc, cell, positions, cutoff, numbers=No
         keep = d < rad[a] + rad[b]
     a, b, shift, D, d = a[keep], b[keep], shift[keep], D[keep], d[keep]
 
-    i = np.concatenate([a, b])
-    j = np.concatenate([b, a])
-    S = np.concatenate([shift, -shift])
-    D = np.concatenate([D, -D])
-    d = np.concatenate([d, d])
+    if full:
+        i, j, S = a, b, shift
+    else:  # both ways (ASE's arithmetic gives (j, i, -S) exactly -D and d)
+        i = np.concatenate([a, b])
+        j = np.concatenate([b, a])
+        S = np.concatenate([shift, -shift])
+        D = np.concatenate([D, -D])
+        d = np.concatenate([d, d])
     if self_interaction:
         # ASE tests the self pair like any other, d = 0 < cutoff: an atom whose
         # cutoff with itself is zero is not its own neighbour

@@ -11,7 +11,9 @@ distances of shape ``(k,)``), ``min_cutoff`` (exclusive) and ``max_cutoff``
 (inclusive) follow MDAnalysis.  Like MDAnalysis, coordinates and the box are
 rounded to float32 first (MDAnalysis's ``check_coords``) and the triclinic cell
 matrix is built the way ``triclinic_vectors`` builds it.  The search is always
-granularsap's Sweep and Prune, with the cutoff widened by 1e-5; when MDAnalysis is
+granularsap's engine (``NeighborSearch``: ``update`` within one group, the
+cross-set ``query`` of ``reference`` against a grid of ``configuration``),
+with the cutoff widened by 1e-5; when MDAnalysis is
 installed every candidate is then decided with the arithmetic of the method
 MDAnalysis would run (``method``, or MDAnalysis's own choice when it is None; see
 ``granularsap.mda.arith``), so pairs at the cutoff agree with MDAnalysis too.
@@ -51,7 +53,7 @@ import numpy as np
 
 from .. import periodic
 from .._validate import as_coords, as_scalar
-from ..search import ContactSearch, NeighborSearch
+from ..search import NeighborSearch
 from . import arith
 
 __all__ = ["Contacts", "FastNS", "capped_distance", "self_capped_distance"]  # noqa: F822 (lazy)
@@ -196,16 +198,14 @@ _KEEP_BYTES = 256 << 20
 
 
 def _search(kind, reach, images, n_threads):
-    """A NeighborSearch (``kind="neighbor"``) or ContactSearch for one call: this
-    thread's last one when it has the same settings."""
+    """A NeighborSearch (``kind="neighbor"``) for one call: this thread's last one
+    when it has the same settings (its buffers, and a configuration's grid that
+    comes back, are reused)."""
     key = (kind, reach, images, n_threads)
     last = getattr(_SEARCHES, "last", None)
     if last is not None and last[0] == key:
         return last[1]
-    if kind == "neighbor":
-        search = NeighborSearch(reach, periodic_images=images, n_threads=n_threads)
-    else:
-        search = ContactSearch(quantities="Pd", periodic_images=images, n_threads=n_threads)
+    search = NeighborSearch(reach, periodic_images=images, n_threads=n_threads)
     _SEARCHES.last = (key, search)
     return search
 
@@ -260,22 +260,22 @@ def _self_candidates(pos, cell, reach, n_threads, any_image=False):
 
 def _cross_candidates(ref, conf, cell, reach, n_threads, any_image=False):
     """``(a, b, d)``: pairs of ``ref[a]`` and ``conf[b]`` within ``reach`` (minimum
-    image), from one search over both sets labelled so that only cross pairs
-    come out."""
+    image), from the engine's cross-set query (``NeighborSearch.query``: a grid
+    of ``conf`` visited by the points of ``ref``); beyond half the cell every
+    image within reach, then the nearest per pair (or with ``any_image`` the
+    first)."""
     n, m = len(ref), len(conf)
     beyond = _beyond_half_cell(cell, reach)
     if beyond and _many_images(cell, reach):
         a, b, d = _brute(ref, conf, cell, reach, n_threads)
         keep = d <= reach
         return a[keep], b[keep], d[keep]
-    pos = np.concatenate([ref, conf])
-    labels = (np.arange(len(pos)) >= n).astype(np.int64)
-    search = _search("contact", reach, "all" if beyond else "minimum", n_threads)
-    pairs, dist = search.update(pos, np.full(len(pos), 0.5 * reach), cell, clump_ids=labels)
+    search = _search("neighbor", reach, "all" if beyond else "minimum", n_threads)
+    pairs, dist = search.query(ref, conf, cell)
     _let_go_if_large(search)
     if beyond:
-        return arith.nearest_images(pairs, dist, n, m, shift=n, any_image=any_image)
-    return pairs[:, 0], pairs[:, 1] - n, dist
+        return arith.nearest_images(pairs, dist, n, m, any_image=any_image)
+    return pairs[:, 0], pairs[:, 1], dist
 
 
 def _finish(i, j, dist, min_cutoff, return_distances):

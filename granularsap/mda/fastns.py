@@ -43,7 +43,10 @@ Differences, all documented in docs/stateful-dropins.md:
   tilted cells.
 
 A ``FastNS`` keeps one engine search for ``self_search`` and one for
-``search``, so repeated searches of one object reuse their buffers.
+``search``, so repeated searches of one object reuse their buffers; ``search``
+is the engine's cross-set query (``NeighborSearch.query``), whose grid of
+``coords`` is built at the first ``search`` and kept for the next ones, as
+MDAnalysis keeps its grid.
 """
 
 from __future__ import annotations
@@ -52,7 +55,7 @@ import numpy as np
 
 from .._validate import as_coords, as_scalar
 from ..cell import Cell
-from ..search import ContactSearch
+from ..search import ContactSearch, NeighborSearch
 
 __all__ = ["FastNS", "NSResults"]
 
@@ -176,7 +179,7 @@ class FastNS:
                 raise ValueError(f"Cutoff {cutoff} too large for box (max {half!r}): at most "
                                  "half the smallest perpendicular cell width")
         self._self = ContactSearch(skin=self.cutoff, quantities="Pd", n_threads=n_threads)
-        self._cross = ContactSearch(skin=self.cutoff, quantities="Pd", n_threads=n_threads)
+        self._cross = NeighborSearch(self.cutoff, quantities="Pd", n_threads=n_threads)
         self._self_result = None
 
     def self_search(self):
@@ -206,14 +209,8 @@ class FastNS:
         NSResults
         """
         query = as_coords(search_coords, "search_coords")
-        n, m = len(self._coords), len(query)
-        pos = np.concatenate([self._coords, query])
-        labels = np.zeros(n + m, np.int64)
-        labels[n:] = 1  # one search over both sets; equal labels never pair
-        pairs, dist = self._cross.update(pos, np.zeros(n + m), self._cell, clump_ids=labels)
-        a, b = pairs[:, 1] - n, pairs[:, 0]  # i < j, so i is in coords, j in the query
-        order = np.lexsort((b, a))
-        out = np.empty((len(order), 2), np.int64)
-        out[:, 0] = a[order]
-        out[:, 1] = b[order]
-        return NSResults(out, dist[order].copy(), m, symmetric=False)
+        # the engine's cross-set query: a grid of coords, kept while they are the
+        # same, visited by the query points
+        pairs, dist = self._cross.query(query, self._coords, self._cell)
+        order = np.lexsort((pairs[:, 1], pairs[:, 0]))
+        return NSResults(pairs[order], dist[order], len(query), symmetric=False)
