@@ -1139,9 +1139,15 @@ class _Search:
             wcap = rows * (len(stencil) + 3) + 64
         todo = np.ones(n_chunks, np.bool_)
         mode = grid.loop_mode(tests[0], tests[8], geometry[11], levels[0])
+        before = None
         while True:
             wstart = np.zeros(n_chunks, np.int64)
             wstart[1:] = np.cumsum(wcap)[:-1]
+            if before is not None:
+                # a grown region moves the regions after it: their records were
+                # written where they no longer start, so those chunks run again
+                todo |= wstart != before
+            before = wstart
             size = int(wcap.sum())
             if getattr(self, "_words", None) is None or len(self._words) < size:
                 size += size // 8

@@ -253,3 +253,22 @@ def test_ties_on_a_dyadic_grid_survive_verlet_frames(pts, cut, margin, pbc, move
                        cutoff=cutoff)
         assert np.array_equal(got[0], want[0])
         np.testing.assert_allclose(got[1], want[1], rtol=1e-12)
+
+
+def test_kept_search_whose_record_regions_grow_between_frames():
+    # a dense blob of a new size every frame: some chunk of the column sweep
+    # outgrows the record region the last frame sized for it, which moves the
+    # regions after it; a kept search must answer every frame as a fresh one
+    rng = np.random.default_rng(0)
+    length = 40.0
+    box = [length] * 3 + [90.0] * 3
+    kept = NeighborSearch(2.5, quantities="P", n_threads=1)
+    for _ in range(5):
+        x = rng.uniform(0.0, length, (25_000, 3))
+        k = int(rng.integers(0, 4000))
+        x[:k] = (rng.uniform(0.0, length, 3) + rng.normal(0.0, rng.uniform(1.5, 4.0), (k, 3))) \
+            % length
+        got = kept.update(x, box, copy=True)
+        want = NeighborSearch(2.5, quantities="P", n_threads=1).update(x, box)
+        assert np.array_equal(np.sort(got[:, 0] * len(x) + got[:, 1]),
+                              np.sort(want[:, 0] * len(x) + want[:, 1]))
