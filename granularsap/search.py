@@ -107,19 +107,25 @@ def _scan_frame(x, rad, kept):
     bad = -1
     hi = 0.0
     lo = np.inf
-    x_lo = np.full(3, np.inf)
-    x_hi = np.full(3, -np.inf)
+    lo0 = lo1 = lo2 = np.inf
+    hi0 = hi1 = hi2 = -np.inf
     for i in range(n):
         for c in range(x.shape[1]):
-            v = x[i, c]
-            a = abs(v)
+            a = abs(x[i, c])
             if not a < np.inf and bad < 0:
                 bad = i
             hi = a if a > hi else hi
             if a > 0.0 and a < lo:
                 lo = a
-            x_lo[c] = v if v < x_lo[c] else x_lo[c]
-            x_hi[c] = v if v > x_hi[c] else x_hi[c]
+        v = x[i, 0]
+        lo0 = v if v < lo0 else lo0
+        hi0 = v if v > hi0 else hi0
+        v = x[i, 1]
+        lo1 = v if v < lo1 else lo1
+        hi1 = v if v > hi1 else hi1
+        v = x[i, 2]
+        lo2 = v if v < lo2 else lo2
+        hi2 = v if v > hi2 else hi2
     ok = True
     rmin = np.inf
     rmax = -np.inf
@@ -132,10 +138,9 @@ def _scan_frame(x, rad, kept):
         rmax = r if r > rmax else rmax
         if same:
             same = r == kept[i]
-    e0 = x_hi[0] - x_lo[0] if n else 0.0
-    e1 = x_hi[1] - x_lo[1] if n else 0.0
-    e2 = x_hi[2] - x_lo[2] if n else 0.0
-    return bad, hi, lo, ok, rmin, rmax, same, e0, e1, e2
+    if n == 0:
+        return bad, hi, lo, ok, rmin, rmax, same, 0.0, 0.0, 0.0
+    return bad, hi, lo, ok, rmin, rmax, same, hi0 - lo0, hi1 - lo1, hi2 - lo2
 
 
 def _far_scale(rng, width):
