@@ -564,8 +564,10 @@ class PairIdentity(_Rows):
         reach = int(min(k_prev, 4096 + 2 * abs(k - k_prev)))
         mapped = m is not None
         m = m if mapped else _NO_ROWS
-        kernels.match_in_step(pairs, m, mapped, prev[2], self.shifts, shifts, jumps, prev_pairs,
-                              prev[1], bounds, reach, out, matched, todo, todo_counts)
+        step = getattr(kernels, "match_in_step" + ("_ids" if mapped else "")
+                       + ("_shifts" if self.shifts else ""))
+        step(pairs, m, prev[2], shifts, jumps, prev_pairs, prev[1], bounds, reach, out, matched,
+             todo, todo_counts)
         left = self._unmatched(matched, k_prev, chunks, kernels, sets, "left")
         self._last_counts = (int(todo_counts.sum()), len(left))
         sets["ended"] = _grow(sets.get("ended"), len(left), np.int64)

@@ -124,7 +124,7 @@ def map_ids_hashed(prev_ids, ids, shift, keys, vals, m):
 
 # ------------------------------------------------------------- matching
 
-@jit
+@ijit
 def _canon(a, b, with_shift, s0, s1, s2):
     """``(lo, hi, t0, t1, t2)``: the pair ``(a, b)`` with shift ``s`` (from ``a`` to
     ``b``) written from its lower row (the shift negated when swapped; a row's
@@ -138,7 +138,7 @@ def _canon(a, b, with_shift, s0, s1, s2):
     return a, b, s0, s1, s2
 
 
-@jit
+@ijit
 def _prev_key(prev_pairs, prev_shifts, with_shift, q):
     t0 = t1 = t2 = np.int64(0)
     if with_shift:
@@ -148,7 +148,7 @@ def _prev_key(prev_pairs, prev_shifts, with_shift, q):
     return _canon(prev_pairs[q, 0], prev_pairs[q, 1], with_shift, t0, t1, t2)
 
 
-@jit
+@ijit
 def _is(prev_pairs, prev_shifts, with_shift, q, lo, hi, s0, s1, s2):
     """Whether previous row ``q`` is the pair ``(lo, hi, s)`` (canonical)."""
     a = prev_pairs[q, 0]
@@ -159,7 +159,7 @@ def _is(prev_pairs, prev_shifts, with_shift, q, lo, hi, s0, s1, s2):
     return p0 == lo and p1 == hi and t0 == s0 and t1 == s1 and t2 == s2
 
 
-@jit
+@ijit
 def _key_of(pairs, m, mapped, n_prev, with_shift, shifts, jumps, r):
     """This call's row ``r`` in the previous call's rows, canonical (``_canon``), or
     ``lo = -1`` when a particle is new."""
@@ -190,7 +190,7 @@ _RESYNC = 1024
 _ANCHORS = 8
 
 
-@jit
+@ijit
 def _find_near(prev_pairs, prev_shifts, with_shift, g, reach, lo, hi, s0, s1, s2):
     """The previous row of ``(lo, hi, s)`` within ``reach`` rows of ``g``, nearest
     first, or -1."""
@@ -207,13 +207,11 @@ def _find_near(prev_pairs, prev_shifts, with_shift, g, reach, lo, hi, s0, s1, s2
     return np.int64(-1)
 
 
-@jit
+@ijit
 def _in_step_chunk(c, pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs,
                    prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts):
-    """Chunk ``c`` of ``match_in_step``.  (The helpers of the matching are
-    compiled as functions of their own, not inlined: one compilation each
-    instead of one per call site and per kernel; ``mapped`` and ``with_shift``
-    are run-time flags whose branches every pair takes the same way.)"""
+    """Chunk ``c`` of ``match_in_step`` (``mapped`` and ``with_shift`` given as
+    constants by each kernel, so that their branches compile away)."""
     k = pairs.shape[0]
     k_prev = prev_pairs.shape[0]
     lo_r = bounds[c]
@@ -268,20 +266,45 @@ def _in_step_chunk(c, pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_
 
 
 @pjit
-def match_in_step(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs,
-                  prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts):
-    """Pass 1 of the pair matching (module docstring): the pairs of this call found
-    near a cursor that follows the previous list.  Particles are mapped to the
-    previous call's rows by ``m`` (``mapped``) or taken by row, pairs compared
-    with their lattice shifts (``with_shift``, corrected by ``jumps``) or
-    without.  ``prev_rows[r]`` is the previous row of pair ``r``, or -1; a pair
-    not found whose particles both existed is written to ``todo`` (chunk ``c``
-    from ``bounds[c]``, their number to ``todo_counts[c]``) for pass 2
+def match_in_step(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds, reach,
+                  prev_rows, matched, todo, todo_counts):
+    """Pass 1 of the pair matching (module docstring), particles by row, no shifts:
+    the pairs of this call found near a cursor that follows the previous list.
+    ``prev_rows[r]`` is the previous row of pair ``r``, or -1; a pair not found
+    whose particles both existed is written to ``todo`` (chunk ``c`` from
+    ``bounds[c]``, their number to ``todo_counts[c]``) for pass 2
     (``match_rest``); ``matched[q] = 1`` for every previous row found.  Chunk
     ``c`` (rows ``bounds[c]:bounds[c + 1]``) places its cursor by finding one of
     its first pairs within ``reach`` rows of its share of the previous list."""
     for c in numba.prange(bounds.shape[0] - 1):
-        _in_step_chunk(c, pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs,
+        _in_step_chunk(c, pairs, m, False, n_prev, False, shifts, jumps, prev_pairs,
+                       prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts)
+
+
+@pjit
+def match_in_step_ids(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
+                      reach, prev_rows, matched, todo, todo_counts):
+    """``match_in_step`` with particles mapped to previous rows by ``m``."""
+    for c in numba.prange(bounds.shape[0] - 1):
+        _in_step_chunk(c, pairs, m, True, n_prev, False, shifts, jumps, prev_pairs,
+                       prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts)
+
+
+@pjit
+def match_in_step_shifts(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
+                         reach, prev_rows, matched, todo, todo_counts):
+    """``match_in_step`` by row and lattice shift (corrected by ``jumps``)."""
+    for c in numba.prange(bounds.shape[0] - 1):
+        _in_step_chunk(c, pairs, m, False, n_prev, True, shifts, jumps, prev_pairs,
+                       prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts)
+
+
+@pjit
+def match_in_step_ids_shifts(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
+                             reach, prev_rows, matched, todo, todo_counts):
+    """``match_in_step`` by ``m`` and lattice shift."""
+    for c in numba.prange(bounds.shape[0] - 1):
+        _in_step_chunk(c, pairs, m, True, n_prev, True, shifts, jumps, prev_pairs,
                        prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts)
 
 
@@ -489,5 +512,6 @@ def match_keys(keys, prev_keys, shift, slots, bounds, prev_rows, matched):
 
 #: the parallel kernels of this module, compiled serially (same names)
 serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in (
-    "match_in_step", "match_entries", "entries_rising",
+    "match_in_step", "match_in_step_ids", "match_in_step_shifts",
+    "match_in_step_ids_shifts", "match_entries", "entries_rising",
     "unmatched_words", "match_keys")})
