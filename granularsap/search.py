@@ -143,6 +143,22 @@ def _scan_frame(x, rad, kept):
     return bad, hi, lo, ok, rmin, rmax, same, hi0 - lo0, hi1 - lo1, hi2 - lo2
 
 
+def _check_half_width(cs, reach_max, what):
+    """Refuse a minimum-image frame whose largest range ``reach_max`` (named
+    ``what``) exceeds half the narrowest perpendicular width of the periodic cell
+    ``cs`` (a ``FrameCell``): several images of a pair would be in range."""
+    widths = cs.widths
+    # the narrowest periodic axis (the one the message names as the smallest)
+    for c in cs.narrowest:
+        if reach_max > 0.5 * widths[c] * (1.0 + 1e-12):
+            raise ValueError(
+                f"{what} {reach_max:.17g} exceeds half the smallest perpendicular cell "
+                f"width {0.5 * widths[c]:.17g} (width {widths[c]:.17g} across cell vector "
+                f"{c}); several periodic images of a pair would be in range. Use a larger "
+                "cell (replicate it) or a smaller range, or periodic_images='all' to get "
+                "every image with its shift")
+
+
 def _far_scale(rng, width):
     """The length a frame's coordinate rounding is compared with to call it "far":
     the range, or without one (a zero cutoff) the narrowest periodic width."""
@@ -507,17 +523,7 @@ class _Search:
         reach_max = 2.0 * rmax + skin
         periodic_run = cell is not None
         if periodic_run and minimum:
-            widths = cs.widths
-            # the narrowest periodic axis (the one the message names as the smallest)
-            for c in cs.narrowest:
-                if reach_max > 0.5 * widths[c] * (1.0 + 1e-12):
-                    raise ValueError(
-                        f"{self._what} {reach_max:.17g} exceeds half the smallest "
-                        f"perpendicular cell width {0.5 * widths[c]:.17g} (width "
-                        f"{widths[c]:.17g} across cell vector {c}); several periodic images "
-                        "of a pair would be in range. Use a larger cell (replicate it) or a "
-                        "smaller range, or periodic_images='all' to get every image with "
-                        "its shift")
+            _check_half_width(cs, reach_max, self._what)
         # Coordinates are scaled by a power of two, which is exact, where squared
         # distances would overflow or underflow (_frame_scale): the scale comes from
         # the interaction range, the smallest pair threshold and the largest
@@ -758,10 +764,12 @@ class _Search:
         return grid.frame_band(float(wext), int(kmax), cs.matrix, cs.pbc, cs.widths,
                                self._reach_max + self._margin, self._reach_max, x2)
 
-    def _raise_bad(self, bad):
+    def _raise_bad(self, bad, name="positions"):
+        """The error of row ``bad`` of ``self._given`` (argument ``name``) too far
+        outside the cell to wrap; nothing when ``bad`` is -1."""
         if bad >= 0:
             raise ValueError(
-                f"positions row {bad} ({self._given[bad].tolist()}) lies about "
+                f"{name} row {bad} ({self._given[bad].tolist()}) lies about "
                 f"{grid.WRAP_LIMIT:.3g} cell lengths or more outside the cell along a "
                 "periodic axis: wrapping it into the cell would keep no significant digit. "
                 "Give coordinates within 2**52 cell lengths of the cell")
@@ -1484,15 +1492,7 @@ class _Search:
         rmax_r, rmax_c = (scan_r[5] if n else 0.0), (scan_c[5] if m else 0.0)
         reach_max = rmax_r + rmax_c + skin
         if cs.cell is not None and minimum:
-            widths = cs.widths
-            for c in cs.narrowest:
-                if reach_max > 0.5 * widths[c] * (1.0 + 1e-12):
-                    raise ValueError(
-                        f"{names[3]} {reach_max:.17g} exceeds half the smallest perpendicular "
-                        f"cell width {0.5 * widths[c]:.17g} (width {widths[c]:.17g} across cell "
-                        f"vector {c}); several periodic images of a pair would be in range. "
-                        "Use a larger cell (replicate it) or a smaller range, or "
-                        "periodic_images='all' to get every image with its shift")
+            _check_half_width(cs, reach_max, names[3])
         q = self.quantities
         times = {}
         stats = {"query": True, "n_reference": n, "n_configuration": m, "threads": 1,
@@ -1539,7 +1539,7 @@ class _Search:
                                key, range_s, gkern, scan_c)
                 if bad >= 0:
                     self._given = configuration
-                    self._raise_bad_named(bad, names[1])
+                    self._raise_bad(bad, names[1])
                 stats["grid"] = "built"
             g = cq.grid
             t1 = time.perf_counter()
@@ -1552,7 +1552,7 @@ class _Search:
                                                                  max(1, n // _CHUNK))))
             if bad >= 0:
                 self._given = reference
-                self._raise_bad_named(bad, names[0])
+                self._raise_bad(bad, names[0])
             wext = max(float(wext_r), cq.wk[0])
             kmax = max(int(kmax_r), cq.wk[1])
             pbc_s = cs_s.pbc
@@ -1634,13 +1634,6 @@ class _Search:
                      candidates_tested=int(tested.sum()), pairs=total)
         self.stats = stats
         return self._query_results(buf, total, n, offsets, copy)
-
-    def _raise_bad_named(self, bad, name):
-        raise ValueError(
-            f"{name} row {bad} ({self._given[bad].tolist()}) lies about "
-            f"{grid.WRAP_LIMIT:.3g} cell lengths or more outside the cell along a "
-            "periodic axis: wrapping it into the cell would keep no significant digit. "
-            "Give coordinates within 2**52 cell lengths of the cell")
 
     def _query_results(self, buf, total, n, offsets, copy):
         p = buf["p"][:total] if total else np.empty((0, 2), np.int64)

@@ -1,7 +1,11 @@
 """Small kernels both engines use: the packed lattice shift of a pair, the bounds
-search in a sorted run, a stable index sort."""
+search in a sorted run, a stable index sort; and what the particles' column sweep
+and the cross-set query share: the agreed separation and threshold test, the
+sweep-axis bucket."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -22,6 +26,48 @@ def encode(s0, s1, s2):
 def decode(code):
     """``(s0, s1, s2)`` of a packed shift code."""
     return (code >> 20) - OFF, ((code >> 10) & 1023) - OFF, (code & 1023) - OFF
+
+
+@ijit
+def separation_between(wa, a, wb, b, cell, s0, s1, s2):
+    """``D = (wb[b] - wa[a]) + s0 cell[0] + s1 cell[1] + s2 cell[2]``, added in this
+    order (the agreed arithmetic, docs/cells.md; ``wa`` and ``wb`` may be one
+    array)."""
+    dx = wb[b, 0] - wa[a, 0]
+    dy = wb[b, 1] - wa[a, 1]
+    dz = wb[b, 2] - wa[a, 2]
+    # added unconditionally (no unpredictable branch): a zero shift adds +-0.0,
+    # which changes no distance
+    dx += s0 * cell[0, 0]
+    dy += s0 * cell[0, 1]
+    dz += s0 * cell[0, 2]
+    dx += s1 * cell[1, 0]
+    dy += s1 * cell[1, 1]
+    dz += s1 * cell[1, 2]
+    dx += s2 * cell[2, 0]
+    dy += s2 * cell[2, 1]
+    dz += s2 * cell[2, 2]
+    return dx, dy, dz
+
+
+@ijit
+def hit(d2, thr, strict, uniform, x2):
+    """The exact test ``d <= thr`` (``d < thr`` if strict) with ``d = sqrt(d2)``;
+    with one threshold for every pair (``uniform``) it is ``d2 <= x2``, ``x2`` the
+    largest double whose rounded square root passes (the same answer, no sqrt)."""
+    if uniform:
+        return d2 <= x2
+    d = math.sqrt(d2)
+    return (d < thr) | ((not strict) & (d == thr))
+
+
+@ijit
+def zbucket(v, zlo, inv_bz, top):
+    """Bucket of sweep coordinate ``v`` on a grid of the sweep axis: ``floor((v -
+    zlo) * inv_bz)`` clamped to ``[0, top]`` (monotone in ``v``)."""
+    f = (v - zlo) * inv_bz
+    f = min(max(f, 0.0), top)
+    return np.int64(f)
 
 
 @jit

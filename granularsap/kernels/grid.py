@@ -87,8 +87,11 @@ from .common import (  # noqa: F401 (re-exported)
     decode,
     encode,
     lower_bound,
+    separation_between,
     stable_argsort,
 )
+from .common import hit as _hit
+from .common import zbucket as _zbucket
 from .radixsort import scatter_offsets
 
 #: fractional coordinates at or beyond this magnitude cannot be wrapped
@@ -98,21 +101,8 @@ WRAP_LIMIT = 2.0 ** 52
 
 @ijit
 def _separation(w, a, b, cell, s0, s1, s2):
-    dx = w[b, 0] - w[a, 0]
-    dy = w[b, 1] - w[a, 1]
-    dz = w[b, 2] - w[a, 2]
-    # added unconditionally (no unpredictable branch): a zero shift adds +-0.0,
-    # which changes no distance
-    dx += s0 * cell[0, 0]
-    dy += s0 * cell[0, 1]
-    dz += s0 * cell[0, 2]
-    dx += s1 * cell[1, 0]
-    dy += s1 * cell[1, 1]
-    dz += s1 * cell[1, 2]
-    dx += s2 * cell[2, 0]
-    dy += s2 * cell[2, 1]
-    dz += s2 * cell[2, 2]
-    return dx, dy, dz
+    """``separation_between`` of two rows of one array."""
+    return separation_between(w, a, w, b, cell, s0, s1, s2)
 
 
 # ------------------------------------------------------- the one arithmetic
@@ -217,17 +207,6 @@ def _unwrapped(kp, p):
     such particles is summed on ``w`` exactly as the agreed arithmetic sums it
     on ``x``, with the same shift."""
     return (kp[p, 0] == 0) & (kp[p, 1] == 0) & (kp[p, 2] == 0)
-
-
-@ijit
-def _hit(d2, thr, strict, uniform, x2):
-    """The exact test ``d <= thr`` (``d < thr`` if strict) with ``d = sqrt(d2)``;
-    with one threshold for every pair (``uniform``) it is ``d2 <= x2``, ``x2`` the
-    largest double whose rounded square root passes (the same answer, no sqrt)."""
-    if uniform:
-        return d2 <= x2
-    d = math.sqrt(d2)
-    return (d < thr) | ((not strict) & (d == thr))
 
 
 @ijit
@@ -1131,15 +1110,6 @@ def csr_from_pairs(n, pairs, dist, want_d, offsets, col, cd):
 # (``_records_fill``) into the outputs.  They are the general path's own
 # kernels on one chunk, so the records, the pairs, their order and their
 # distances are those of the general path bit for bit.
-
-
-@ijit
-def _zbucket(v, zlo, inv_bz, top):
-    """Bucket of sweep coordinate ``v`` on the small path's grid of the sweep axis:
-    ``floor((v - zlo) * inv_bz)`` clamped to ``[0, top]`` (monotone in ``v``)."""
-    f = (v - zlo) * inv_bz
-    f = min(max(f, 0.0), top)
-    return np.int64(f)
 
 
 @jit

@@ -78,7 +78,7 @@ import numpy as np
 
 from .._numba import ijit, jit, pjit, serial_twin
 from .bits import ctpop, cttz
-from .common import lower_bound
+from .common import hit, lower_bound, separation_between, zbucket
 
 #: the configuration's grid as the visits read it (column order unless named):
 #: ``start`` (ncol + 1) first slot of every column; ``nb0``, ``nb1`` columns;
@@ -148,15 +148,6 @@ def _upper(arr, lo, hi, v):
     return lo
 
 
-@ijit
-def _bucket(v, zlo, inv_bz, top):
-    """Sweep bucket of fractional coordinate ``v``: ``floor((v - zlo) * inv_bz)``
-    clamped to ``[0, top]``, a monotone function of ``v``."""
-    f = (v - zlo) * inv_bz
-    f = min(max(f, 0.0), top)
-    return np.int64(f)
-
-
 @pjit
 def zindex(start, tz, zidx, nz, zlo, inv_bz):
     """For every column ``c`` and bucket ``b``, ``zidx[c * (nz + 1) + b]``: the first
@@ -173,7 +164,7 @@ def zindex(start, tz, zidx, nz, zlo, inv_bz):
         hi = start[c + 1]
         b = 0
         for q in range(start[c], hi):
-            bq = _bucket(tz[q], zlo, inv_bz, top)
+            bq = zbucket(tz[q], zlo, inv_bz, top)
             while b <= bq:
                 zidx[row + b] = q
                 b += 1
@@ -183,43 +174,14 @@ def zindex(start, tz, zidx, nz, zlo, inv_bz):
 
 
 @ijit
-def _given_sum(xr, i, xc, j, cell, g0, g1, g2):
-    """``D = (xc[j] - xr[i]) + g0 a + g1 b + g2 c``, added in this order (the
-    agreed arithmetic on the given positions; ``grid._separation`` with two sets)."""
-    dx = xc[j, 0] - xr[i, 0]
-    dy = xc[j, 1] - xr[i, 1]
-    dz = xc[j, 2] - xr[i, 2]
-    dx += g0 * cell[0, 0]
-    dy += g0 * cell[0, 1]
-    dz += g0 * cell[0, 2]
-    dx += g1 * cell[1, 0]
-    dy += g1 * cell[1, 1]
-    dz += g1 * cell[1, 2]
-    dx += g2 * cell[2, 0]
-    dy += g2 * cell[2, 1]
-    dz += g2 * cell[2, 2]
-    return dx, dy, dz
-
-
-@ijit
-def _hit(d2, thr, strict, uniform, x2):
-    """``d <= thr`` (``<`` if strict) with ``d = sqrt(d2)``; ``d2 <= x2`` with one
-    threshold (``grid._hit``)."""
-    if uniform:
-        return d2 <= x2
-    d = math.sqrt(d2)
-    return (d < thr) | ((not strict) & (d == thr))
-
-
-@ijit
 def _given_hit(g, ref, i, q, ts, s0, s1, s2, thr):
     """The agreed test of reference ``i`` and slot ``q`` through the wrapped-frame
     shift ``s``: on the given positions, with the shift relative to them."""
     g0 = s0 - g.ks[q, 0] + ref.k[i, 0]
     g1 = s1 - g.ks[q, 1] + ref.k[i, 1]
     g2 = s2 - g.ks[q, 2] + ref.k[i, 2]
-    dx, dy, dz = _given_sum(ref.xg, i, g.xg, g.perm[q], ts.cell, g0, g1, g2)
-    return _hit(dx * dx + dy * dy + dz * dz, thr, ts.strict, ts.uniform, ts.x2)
+    dx, dy, dz = separation_between(ref.xg, i, g.xg, g.perm[q], ts.cell, g0, g1, g2)
+    return hit(dx * dx + dy * dy + dz * dz, thr, ts.strict, ts.uniform, ts.x2)
 
 
 @ijit
@@ -380,10 +342,10 @@ def _rows_of(i, g, ref, ts, rec, wbase, wcap, w):
             for k in range(k_lo, k_hi + 1):
                 kf = float(k)
                 v = lo_v - kf
-                b = row + _bucket(v, g.zlo, g.inv_bz, ztop)
+                b = row + zbucket(v, g.zlo, g.inv_bz, ztop)
                 qa = lower_bound(g.tz, g.zidx[b], g.zidx[b + 1], v)
                 v = hi_v - kf
-                b = row + _bucket(v, g.zlo, g.inv_bz, ztop)
+                b = row + zbucket(v, g.zlo, g.inv_bz, ztop)
                 qb = _upper(g.tz, max(qa, g.zidx[b]), g.zidx[b + 1], v)
                 if qa >= qb:
                     continue
@@ -503,7 +465,7 @@ def _fill_records(r_lo, r_hi, g, ref, ts, offsets, rec, out):
                     vy = (((g.ys[q] - yp) + ay) + by) + cy
                     vz = (((g.zs[q] - zp) + az) + bz) + cz
                 else:
-                    vx, vy, vz = _given_sum(ref.xg, i, g.xg, j, cell, g0, g1, g2)
+                    vx, vy, vz = separation_between(ref.xg, i, g.xg, j, cell, g0, g1, g2)
                 if out.want_d:
                     out.d[o] = math.sqrt(vx * vx + vy * vy + vz * vz)
                 if out.want_v:
