@@ -103,8 +103,7 @@ class TestLowerBound:
         for q in ("P", "Pd", "PdDS", "ijd"):
             s = NeighborSearch(1.0, quantities=q)
             s.update(x, box=[5, 5, 5, 90, 90, 90])
-            out = sum(getattr(s, name).nbytes for name in ("_out_p", "_out_d", "_out_v",
-                                                           "_out_s"))
+            out = sum(getattr(s._out, name).nbytes for name in "pdvs")
             assert out >= bytes_per_pair(q) * s.stats["pairs"]
 
 

@@ -162,9 +162,9 @@ class TestSphereContacts:
     def test_parallel_kernels_on_a_small_input(self, box, monkeypatch):
         # an explicit thread count runs the parallel kernels however small the
         # input; one thread runs their serial builds: both equal the oracle
-        import granularsap.search
+        import granularsap.search.plan
 
-        monkeypatch.setattr(granularsap.search, "_CHUNK", 16)  # many chunks
+        monkeypatch.setattr(granularsap.search.plan, "CHUNK", 16)  # many chunks
         pos = _points(11, 90)
         radii = np.random.default_rng(11).uniform(0.1, 1.2, 90)
         serial = _sorted(*sphere_contacts(pos, radii, box=BOXES[box], n_threads=1,

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import granularsap.search as search_module
+import granularsap.search.chooser as search_module
 from granularsap import ContactSearch, NeighborSearch
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: the frames of the check, built the same way in this process and in the children
 FRAMES = textwrap.dedent("""
     import numpy as np
-    import granularsap.search as search_module
+    import granularsap.search.chooser as search_module
     from granularsap import ContactSearch, NeighborSearch
 
     def frames():
@@ -48,8 +48,8 @@ FRAMES = textwrap.dedent("""
         out = {}
         for name, cls, args, frame, opts in frames():
             for n_threads in (1, 2):
-                old = search_module._SWEEP_MIN_N
-                search_module._SWEEP_MIN_N = opts.get("min_n", old)
+                old = search_module.SWEEP_MIN_N
+                search_module.SWEEP_MIN_N = opts.get("min_n", old)
                 try:
                     s = cls(*args, quantities="Pd", n_threads=n_threads)
                     if name != "small":
@@ -58,7 +58,7 @@ FRAMES = textwrap.dedent("""
                     s.update(*frame)
                     out[f"{name} {n_threads}"] = [s.stats["path"], s.stats["path_reason"]]
                 finally:
-                    search_module._SWEEP_MIN_N = old
+                    search_module.SWEEP_MIN_N = old
         return out
 """)
 
@@ -114,8 +114,8 @@ def test_a_search_keeps_no_history_of_its_choice():
     dense_x = rng.uniform(0.0, 24.0, (n, 3))
     dense_r = np.full(n, 1.0)
     box = [24.0] * 3 + [90.0] * 3
-    old = search_module._SWEEP_MIN_N
-    search_module._SWEEP_MIN_N = 1000
+    old = search_module.SWEEP_MIN_N
+    search_module.SWEEP_MIN_N = 1000
     try:
         s = ContactSearch(quantities="Pd")
         s._small_max = 0
@@ -125,7 +125,7 @@ def test_a_search_keeps_no_history_of_its_choice():
             s.update(x, r, box)
             seen.append((s.stats["path"], s.stats["path_reason"]))
     finally:
-        search_module._SWEEP_MIN_N = old
+        search_module.SWEEP_MIN_N = old
     assert [p for p, _ in seen] == ["sweep", "columns", "sweep"]
     assert seen[0] == seen[2]
 
