@@ -6,17 +6,34 @@ separations, the memory check, the half-width de-duplication)."""
 from __future__ import annotations
 
 import math
+import time
 
 import numba
 import numpy as np
 
 from .. import _memory
+from .._numba import num_threads
 from ..kernels import grid, query
 from . import plan
+from .frame import (
+    FAR,
+    GUARD,
+    NO_RADII,
+    TINY_D,
+    check_half_width,
+    exp2,
+    far_scale,
+    frame_scale,
+    raise_unwrappable,
+    scan_frame,
+    square_bound,
+)
 
 #: reference points per chunk of a query's parallel passes (boundaries depend on
 #: the number of reference points only)
 QUERY_CHUNK = 256
+#: below this many points in all one thread runs (``engine.PARALLEL_MIN``)
+PARALLEL_MIN = 20000
 #: ``todo`` of a query's one chunk (read by the kernel, never written)
 _ONE_CHUNK = np.ones(1, np.bool_)
 _NO_ENTRIES = np.zeros(0, np.int64)
@@ -127,6 +144,165 @@ class CrossQuery:
         self.range = rng
         self.builds += 1
         return -1
+
+    def run(self, reference, ref_r, configuration, conf_r, skin, cs, *, minimum, strict,
+            quantities, layout, n_threads, names):
+        """One cross-set query of validated inputs: pairs ``(i, j)`` of
+        ``reference[i]`` and ``configuration[j]`` with ``d <= (ref_r[i] +
+        conf_r[j]) + skin`` in the cell ``cs`` (a ``FrameCell``), the
+        configuration's grid kept while it, its radii, the cell and the frame's
+        scale come back.  ``names``: the argument names of messages (reference,
+        configuration, the range, the largest range, the smallest threshold).
+        Returns (output set, pairs, CSR offsets by reference point, stats)."""
+        t_start = time.perf_counter()
+        n, m = len(reference), len(configuration)
+        scan_r = scan_frame(reference, ref_r, NO_RADII)
+        if scan_r[0] >= 0:
+            raise ValueError(f"{names[0]} must be finite, got NaN or inf in row {scan_r[0]}")
+        same = (self.conf is not None and len(self.conf) == m and np.array_equal(self.conf,
+                                                                              configuration)
+                and np.array_equal(self.conf_r, conf_r))
+        scan_c = self.scan if same else scan_frame(configuration, conf_r, NO_RADII)
+        if scan_c[0] >= 0:
+            raise ValueError(f"{names[1]} must be finite, got NaN or inf in row {scan_c[0]}")
+        rmax_r, rmax_c = (scan_r[5] if n else 0.0), (scan_c[5] if m else 0.0)
+        reach_max = rmax_r + rmax_c + skin
+        if cs.cell is not None and minimum:
+            check_half_width(cs, reach_max, names[3])
+        q = quantities
+        times = {}
+        stats = {"query": True, "n_reference": n, "n_configuration": m, "threads": 1,
+                 "grid": "none", "grid_builds": self.builds, "columns": (0, 0),
+                 "candidates_tested": 0, "pairs": 0, "seconds": times}
+        if n == 0 or m == 0:
+            buf = self.outputs(0, ("d" in q, "D" in q, "S" in q))
+            times["total"] = time.perf_counter() - t_start
+            return buf, 0, np.zeros(n + 1, np.int64), stats
+        big = max(scan_r[1], scan_c[1], cs.magnitude)
+        fine = min(scan_r[2], scan_c[2], cs.fine)
+        thr_min = scan_r[4] + scan_c[4] + skin
+        k = frame_scale(big, fine, reach_max, thr_min, *names[2:])
+        scale = math.ldexp(1.0, k) if k else 1.0
+        fine_q = max(exp2(fine) - 53, -1074) if math.isfinite(fine) else None
+        # tiny separations whose squares the scale lets underflow: recomputed
+        tiny = fine_q is not None and fine_q + exp2(scale) - 1 < -480
+        cs_s = cs.scaled(scale) if scale != 1.0 else cs
+        xr, xc = reference, configuration
+        rr, rc, skin_s = ref_r, conf_r, skin
+        if scale != 1.0:
+            xr, xc, rr, rc, skin_s = xr * scale, xc * scale, rr * scale, rc * scale, skin * scale
+        range_s = reach_max * scale
+        key = (cs.key, scale)
+        threads = n_threads
+        if threads is None and n + m < PARALLEL_MIN:
+            threads = 1
+        serial = threads == 1 or (m < PARALLEL_MIN and n < 2 * QUERY_CHUNK)
+        # (serial kernels only: no thread setting, as small frames of update)
+        with num_threads(None if serial else threads) as threads:
+            if serial:
+                threads = 1
+            gkern = grid.serial if threads == 1 else grid
+            qkern = query.serial if threads == 1 or n < 2 * QUERY_CHUNK else query
+            t0 = time.perf_counter()
+            if same and self.key == key and self.range <= 2.0 * range_s + 1e-300:
+                stats["grid"] = "kept"
+            else:
+                # the grid keeps its own copy (the given array may be edited in place)
+                kept = self.buffer("conf", configuration.shape, np.float64)
+                np.copyto(kept, configuration)
+                bad = self.build(kept, conf_r, kept * scale if scale != 1.0 else kept, rc, cs_s,
+                               key, range_s, gkern, scan_c)
+                raise_unwrappable(configuration, bad, names[1])
+                stats["grid"] = "built"
+            g = self.grid
+            t1 = time.perf_counter()
+            times["grid"] = t1 - t0
+            tr = np.empty((n, 3))
+            kr = np.empty((n, 3), np.int64)
+            wr = np.empty((n, 3))
+            bad, wext_r, kmax_r = gkern.wrap(xr, cs_s.hinv, cs_s.matrix, cs_s.diag, cs_s.pbc,
+                                             tr, kr, wr, plan.wrap_chunks(n))
+            raise_unwrappable(reference, bad, names[0])
+            wext = max(float(wext_r), self.wk[0])
+            kmax = max(int(kmax_r), self.wk[1])
+            pbc_s = cs_s.pbc
+            far = bool(GUARD * wext > far_scale(range_s, cs_s.min_periodic_width) * FAR
+                       and not pbc_s.all() and (cs_s.diag or not pbc_s.any()))
+            if far:
+                # coordinates far beyond the range along open axes (``_build``): the
+                # band and the guard from the periodic lengths; open axes are not
+                # wrapped and their column edges are not trusted (no gap test)
+                wext = 2.0 * max((abs(float(cs_s.matrix[c, c])) for c in range(3) if pbc_s[c]),
+                                 default=0.0)
+            uniform = scan_r[4] == scan_r[5] and scan_c[4] == scan_c[5]
+            x2 = 0.0
+            if uniform:
+                thr = ((float(rr[0]) + float(rc[0])) + skin_s, strict)
+                memo = self.square
+                if memo[0] != thr:
+                    memo = self.square = (thr, square_bound(*thr))
+                x2 = memo[1]
+            lo2, hi2, dtol, exact = grid.frame_band(wext, kmax, cs_s.matrix, pbc_s,
+                                                    cs_s.widths, range_s, range_s, x2)
+            guard = GUARD * (wext + range_s) + np.finfo(np.float64).tiny
+            if pbc_s.any() and guard > 0.25 * cs_s.min_periodic_width:
+                raise ValueError(
+                    f"{names[0]} and {names[1]} up to {big!r} in magnitude: their rounding "
+                    f"(about {guard / scale:.3g}) exceeds a quarter of the cell width "
+                    f"{cs.min_periodic_width:.17g}; give coordinates nearer the cell")
+            inv_w = 1.0 / cs_s.widths
+            gap = pbc_s | (not far)  # (no gap test along open axes of a far frame)
+            if n > QUERY_CHUNK:  # visited column by column (the grid's memory in order)
+                col = np.empty(n, np.int64)
+                gkern.columns_of(tr, np.array([g.lo0, g.lo1, 0.0]),
+                                 np.array([g.inv_f0, g.inv_f1, 0.0]), g.nb0, g.nb1, col)
+                order = np.argsort(col, kind="stable")
+            else:
+                order = np.arange(n, dtype=np.int64)
+            ref = query.Ref(xr, tr, kr, wr, rr, order)
+            ts = query.Test(cs_s.matrix, pbc_s.copy(), bool(cs_s.diag), inv_w, float(skin_s),
+                            strict, bool(uniform), float(x2), float(lo2), float(hi2), float(dtol),
+                            bool(exact), self.rmax, float(skin_s + guard + dtol),
+                            float(guard), gap)
+            n_chunks = (n + QUERY_CHUNK - 1) // QUERY_CHUNK
+            counts = np.empty(n, np.int64)
+            tested = np.empty(n_chunks, np.int64)
+            dedup = (minimum and cs.cell is not None
+                     and 2.0 * reach_max >= cs.min_periodic_width * (1.0 - 1e-9))
+            want = ("d" in q or dedup or tiny, "D" in q, "S" in q or tiny)
+            t2 = time.perf_counter()
+            times["wrap"] = t2 - t1
+            rec, wstart, wneed = self.pass1(qkern, g, ref, ts, counts, tested, QUERY_CHUNK)
+            offsets = np.zeros(n + 1, np.int64)
+            np.cumsum(counts, out=offsets[1:])
+            total = int(offsets[-1])
+            t3 = time.perf_counter()
+            times["count"] = t3 - t2
+            query_memory(total, q, layout)
+            buf = self.outputs(total, want)
+            out = query.Out(buf["p"], buf["d"], buf["v"], buf["s"], *want)
+            if total:
+                qkern.fill(g, ref, ts, rec, wstart, wneed, offsets, out)
+            times["fill"] = time.perf_counter() - t3
+        if dedup and total:
+            total = query_dedup(buf, total, m)
+            if total < offsets[-1]:
+                offsets = np.searchsorted(buf["p"][:total, 0], np.arange(n + 1)).astype(np.int64)
+        if total and (scale != 1.0 or tiny):
+            d, v = buf["d"][:total], buf["v"][:total]
+            if scale != 1.0:
+                inv = 1.0 / scale
+                d *= inv
+                v *= inv
+            if tiny:
+                rows = np.flatnonzero(d < TINY_D / scale) if fine_q + k >= -1074 else (
+                    np.arange(total))
+                if len(rows):
+                    query_tiny(reference, configuration, cs, buf["p"], buf["s"], d, v, rows)
+        times["total"] = time.perf_counter() - t_start
+        stats.update(threads=threads, grid_builds=self.builds, columns=(g.nb0, g.nb1),
+                     candidates_tested=int(tested.sum()), pairs=total)
+        return buf, total, offsets, stats
 
     def pass1(self, kern, g, ref, ts, counts, tested, chunk):
         """Pass 1 of a query (``query.count``) with its records in regions sized

@@ -28,11 +28,11 @@ from .._validate import as_scalar, check_n_threads
 from ..cell import Cell
 from ..geometry import FrameCell
 from ..identity import PairIdentity, as_ids
-from ..kernels import grid, query
+from ..kernels import grid
 from . import chooser, plan
 from .chooser import PATHS
 from .columns import NO_BIG, Band, Columns, ColumnSweep, Levels, PairTest
-from .cross import QUERY_CHUNK, CrossQuery, query_dedup, query_memory, query_tiny
+from .cross import CrossQuery
 from .frame import (
     FAR,
     GUARD,
@@ -45,6 +45,7 @@ from .frame import (
     far_scale,
     frame_scale,
     magnitudes,
+    raise_unwrappable,
     scan_frame,
     square_bound,
 )
@@ -448,12 +449,7 @@ class SearchEngine:
     def _raise_bad(self, bad, name="positions"):
         """The error of row ``bad`` of ``self._given`` (argument ``name``) too far
         outside the cell to wrap; nothing when ``bad`` is -1."""
-        if bad >= 0:
-            raise ValueError(
-                f"{name} row {bad} ({self._given[bad].tolist()}) lies about "
-                f"{grid.WRAP_LIMIT:.3g} cell lengths or more outside the cell along a "
-                "periodic axis: wrapping it into the cell would keep no significant digit. "
-                "Give coordinates within 2**52 cell lengths of the cell")
+        raise_unwrappable(self._given, bad, name)
 
     def _build(self, positions, rad, skin, cs, labels, n, rmax, reach_max, minimum, key,
                times):
@@ -929,170 +925,18 @@ class SearchEngine:
     def _query(self, reference, ref_r, configuration, conf_r, skin, box, pbc, copy, names):
         """One cross-set query of validated inputs (``query`` of the subclasses):
         pairs ``(i, j)`` of ``reference[i]`` and ``configuration[j]`` with ``d <=
-        (ref_r[i] + conf_r[j]) + skin``, the configuration's grid kept (see
-        ``CrossQuery``).  ``names``: the argument names of messages (reference,
-        configuration, the range, the largest range, the smallest threshold)."""
-        t_start = time.perf_counter()
+        (ref_r[i] + conf_r[j]) + skin``, the configuration's grid kept
+        (``cross.CrossQuery``).  ``names``: the argument names of messages."""
         cq = self._cross
         if cq is None:
             cq = self._cross = CrossQuery()
-        n, m = len(reference), len(configuration)
         cs = self._cell_state(box, pbc)
-        minimum = self.periodic_images == "minimum"
-        strict = not self.include_cutoff
-        scan_r = scan_frame(reference, ref_r, NO_RADII)
-        if scan_r[0] >= 0:
-            raise ValueError(f"{names[0]} must be finite, got NaN or inf in row {scan_r[0]}")
-        same = (cq.conf is not None and len(cq.conf) == m and np.array_equal(cq.conf,
-                                                                              configuration)
-                and np.array_equal(cq.conf_r, conf_r))
-        scan_c = cq.scan if same else scan_frame(configuration, conf_r, NO_RADII)
-        if scan_c[0] >= 0:
-            raise ValueError(f"{names[1]} must be finite, got NaN or inf in row {scan_c[0]}")
-        rmax_r, rmax_c = (scan_r[5] if n else 0.0), (scan_c[5] if m else 0.0)
-        reach_max = rmax_r + rmax_c + skin
-        if cs.cell is not None and minimum:
-            check_half_width(cs, reach_max, names[3])
-        q = self.quantities
-        times = {}
-        stats = {"query": True, "n_reference": n, "n_configuration": m, "threads": 1,
-                 "grid": "none", "grid_builds": cq.builds, "columns": (0, 0),
-                 "candidates_tested": 0, "pairs": 0, "seconds": times}
-        if n == 0 or m == 0:
-            buf = cq.outputs(0, ("d" in q, "D" in q, "S" in q))
-            times["total"] = time.perf_counter() - t_start
-            self.stats = stats
-            return self._query_results(buf, 0, n, np.zeros(n + 1, np.int64), copy)
-        big = max(scan_r[1], scan_c[1], cs.magnitude)
-        fine = min(scan_r[2], scan_c[2], cs.fine)
-        thr_min = scan_r[4] + scan_c[4] + skin
-        k = frame_scale(big, fine, reach_max, thr_min, *names[2:])
-        scale = math.ldexp(1.0, k) if k else 1.0
-        fine_q = max(exp2(fine) - 53, -1074) if math.isfinite(fine) else None
-        # tiny separations whose squares the scale lets underflow: recomputed
-        tiny = fine_q is not None and fine_q + exp2(scale) - 1 < -480
-        cs_s = cs.scaled(scale) if scale != 1.0 else cs
-        xr, xc = reference, configuration
-        rr, rc, skin_s = ref_r, conf_r, skin
-        if scale != 1.0:
-            xr, xc, rr, rc, skin_s = xr * scale, xc * scale, rr * scale, rc * scale, skin * scale
-        range_s = reach_max * scale
-        key = (cs.key, scale)
-        threads = self.n_threads
-        if threads is None and n + m < PARALLEL_MIN:
-            threads = 1
-        serial = threads == 1 or (m < PARALLEL_MIN and n < 2 * QUERY_CHUNK)
-        # (serial kernels only: no thread setting, as small frames of update)
-        with num_threads(None if serial else threads) as threads:
-            if serial:
-                threads = 1
-            gkern = grid.serial if threads == 1 else grid
-            qkern = query.serial if threads == 1 or n < 2 * QUERY_CHUNK else query
-            t0 = time.perf_counter()
-            if same and cq.key == key and cq.range <= 2.0 * range_s + 1e-300:
-                stats["grid"] = "kept"
-            else:
-                # the grid keeps its own copy (the given array may be edited in place)
-                kept = cq.buffer("conf", configuration.shape, np.float64)
-                np.copyto(kept, configuration)
-                bad = cq.build(kept, conf_r, kept * scale if scale != 1.0 else kept, rc, cs_s,
-                               key, range_s, gkern, scan_c)
-                if bad >= 0:
-                    self._given = configuration
-                    self._raise_bad(bad, names[1])
-                stats["grid"] = "built"
-            g = cq.grid
-            t1 = time.perf_counter()
-            times["grid"] = t1 - t0
-            tr = np.empty((n, 3))
-            kr = np.empty((n, 3), np.int64)
-            wr = np.empty((n, 3))
-            bad, wext_r, kmax_r = gkern.wrap(xr, cs_s.hinv, cs_s.matrix, cs_s.diag, cs_s.pbc,
-                                             tr, kr, wr, plan.wrap_chunks(n))
-            if bad >= 0:
-                self._given = reference
-                self._raise_bad(bad, names[0])
-            wext = max(float(wext_r), cq.wk[0])
-            kmax = max(int(kmax_r), cq.wk[1])
-            pbc_s = cs_s.pbc
-            far = bool(GUARD * wext > far_scale(range_s, cs_s.min_periodic_width) * FAR
-                       and not pbc_s.all() and (cs_s.diag or not pbc_s.any()))
-            if far:
-                # coordinates far beyond the range along open axes (``_build``): the
-                # band and the guard from the periodic lengths; open axes are not
-                # wrapped and their column edges are not trusted (no gap test)
-                wext = 2.0 * max((abs(float(cs_s.matrix[c, c])) for c in range(3) if pbc_s[c]),
-                                 default=0.0)
-            uniform = scan_r[4] == scan_r[5] and scan_c[4] == scan_c[5]
-            x2 = 0.0
-            if uniform:
-                thr = ((float(rr[0]) + float(rc[0])) + skin_s, strict)
-                memo = cq.square
-                if memo[0] != thr:
-                    memo = cq.square = (thr, square_bound(*thr))
-                x2 = memo[1]
-            lo2, hi2, dtol, exact = grid.frame_band(wext, kmax, cs_s.matrix, pbc_s,
-                                                    cs_s.widths, range_s, range_s, x2)
-            guard = GUARD * (wext + range_s) + np.finfo(np.float64).tiny
-            if pbc_s.any() and guard > 0.25 * cs_s.min_periodic_width:
-                raise ValueError(
-                    f"{names[0]} and {names[1]} up to {big!r} in magnitude: their rounding "
-                    f"(about {guard / scale:.3g}) exceeds a quarter of the cell width "
-                    f"{cs.min_periodic_width:.17g}; give coordinates nearer the cell")
-            inv_w = 1.0 / cs_s.widths
-            gap = pbc_s | (not far)  # (no gap test along open axes of a far frame)
-            if n > QUERY_CHUNK:  # visited column by column (the grid's memory in order)
-                col = np.empty(n, np.int64)
-                gkern.columns_of(tr, np.array([g.lo0, g.lo1, 0.0]),
-                                 np.array([g.inv_f0, g.inv_f1, 0.0]), g.nb0, g.nb1, col)
-                order = np.argsort(col, kind="stable")
-            else:
-                order = np.arange(n, dtype=np.int64)
-            ref = query.Ref(xr, tr, kr, wr, rr, order)
-            ts = query.Test(cs_s.matrix, pbc_s.copy(), bool(cs_s.diag), inv_w, float(skin_s),
-                            strict, bool(uniform), float(x2), float(lo2), float(hi2), float(dtol),
-                            bool(exact), cq.rmax, float(skin_s + guard + dtol),
-                            float(guard), gap)
-            n_chunks = (n + QUERY_CHUNK - 1) // QUERY_CHUNK
-            counts = np.empty(n, np.int64)
-            tested = np.empty(n_chunks, np.int64)
-            dedup = (minimum and cs.cell is not None
-                     and 2.0 * reach_max >= cs.min_periodic_width * (1.0 - 1e-9))
-            want = ("d" in q or dedup or tiny, "D" in q, "S" in q or tiny)
-            t2 = time.perf_counter()
-            times["wrap"] = t2 - t1
-            rec, wstart, wneed = cq.pass1(qkern, g, ref, ts, counts, tested, QUERY_CHUNK)
-            offsets = np.zeros(n + 1, np.int64)
-            np.cumsum(counts, out=offsets[1:])
-            total = int(offsets[-1])
-            t3 = time.perf_counter()
-            times["count"] = t3 - t2
-            query_memory(total, q, self.layout)
-            buf = cq.outputs(total, want)
-            out = query.Out(buf["p"], buf["d"], buf["v"], buf["s"], *want)
-            if total:
-                qkern.fill(g, ref, ts, rec, wstart, wneed, offsets, out)
-            times["fill"] = time.perf_counter() - t3
-        if dedup and total:
-            total = query_dedup(buf, total, m)
-            if total < offsets[-1]:
-                offsets = np.searchsorted(buf["p"][:total, 0], np.arange(n + 1)).astype(np.int64)
-        if total and (scale != 1.0 or tiny):
-            d, v = buf["d"][:total], buf["v"][:total]
-            if scale != 1.0:
-                inv = 1.0 / scale
-                d *= inv
-                v *= inv
-            if tiny:
-                rows = np.flatnonzero(d < TINY_D / scale) if fine_q + k >= -1074 else (
-                    np.arange(total))
-                if len(rows):
-                    query_tiny(reference, configuration, cs, buf["p"], buf["s"], d, v, rows)
-        times["total"] = time.perf_counter() - t_start
-        stats.update(threads=threads, grid_builds=cq.builds, columns=(g.nb0, g.nb1),
-                     candidates_tested=int(tested.sum()), pairs=total)
-        self.stats = stats
-        return self._query_results(buf, total, n, offsets, copy)
+        buf, total, offsets, self.stats = cq.run(
+            reference, ref_r, configuration, conf_r, skin, cs,
+            minimum=self.periodic_images == "minimum", strict=not self.include_cutoff,
+            quantities=self.quantities, layout=self.layout, n_threads=self.n_threads,
+            names=names)
+        return self._query_results(buf, total, len(reference), offsets, copy)
 
     def _query_results(self, buf, total, n, offsets, copy):
         p = buf["p"][:total] if total else np.empty((0, 2), np.int64)

@@ -12,6 +12,7 @@ import numpy as np
 
 from .._numba import jit
 from .._validate import as_vector
+from ..kernels.grid import WRAP_LIMIT
 
 #: the letters of ``quantities``
 QUANTITIES = "Pijd DS".replace(" ", "")
@@ -213,3 +214,14 @@ def as_labels(clump_ids, n, name="clump_ids"):
                              f"{int(ids[big])} at index {big}; renumber the clumps, e.g. with "
                              f"np.unique({name}, return_inverse=True)[1]")
     return np.ascontiguousarray(ids, dtype=np.int64)
+
+
+def raise_unwrappable(given, bad, name):
+    """The error of row ``bad`` of ``given`` (argument ``name``) too far outside
+    the cell to wrap; nothing when ``bad`` is -1."""
+    if bad >= 0:
+        raise ValueError(
+            f"{name} row {bad} ({given[bad].tolist()}) lies about {WRAP_LIMIT:.3g} cell "
+            "lengths or more outside the cell along a periodic axis: wrapping it into the "
+            "cell would keep no significant digit. Give coordinates within 2**52 cell "
+            "lengths of the cell")
