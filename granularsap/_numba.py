@@ -202,6 +202,9 @@ def num_threads(n_threads):
         yield numba.get_num_threads()
         return
     old = numba.get_num_threads()
+    if old == n_threads:  # nothing to set or restore (a small frame's every call)
+        yield n_threads
+        return
     numba.set_num_threads(n_threads)
     try:
         yield n_threads

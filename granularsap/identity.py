@@ -490,11 +490,22 @@ class PairIdentity(_Rows):
             m = self._map(n, ids, prev)
             k_prev = len(prev[0])
             kernels, chunks = self._threads(k)
-            matched = self._matched(k_prev)
             prev_entries = self._entries
             same_list = (entries is not None and prev_entries is not None and m is None
                          and int(n) == prev[2] and prev_entries[0] == entries[0]
                          and len(prev_entries[1]) == k_prev and len(entries[1]) == k)
+            if same_list and chunks == 1 and k and k_prev:
+                e = self._by_entry_one(entries[1], prev_entries[1], k, k_prev)
+                if e is not None:
+                    self._track_clumps(pairs, labels)
+                    self._entries = (entries[0], e if borrow else e.copy())
+                    self._checked = None
+                    keep = (np.array(positions, dtype=np.float64)
+                            if self.shifts and positions is not None else None)
+                    self._prev = (pairs, shifts, int(n), None if ids is None else ids.copy(),
+                                  keep)
+                    return self.previous_rows
+            matched = self._matched(k_prev)
 
             def fill_rows(out, sets):
                 self.matched_by = "nothing"
@@ -524,6 +535,26 @@ class PairIdentity(_Rows):
             keep = np.array(positions, dtype=np.float64)
         self._prev = (pairs, shifts, int(n), None if ids is None else ids.copy(), keep)
         return self.previous_rows
+
+    def _by_entry_one(self, e, e_prev, k, k_prev):
+        """The whole matching of a small call on the previous call's list, in one
+        serial kernel (``match_entries_one``): this call's maps published, and
+        ``e`` (int64) returned, or None when ``e`` does not increase (nothing
+        published)."""
+        e = np.ascontiguousarray(e, dtype=np.int64)
+        s = self._sets[1 - self._set]
+        s["matched"] = _grow(s.get("matched"), k_prev + (-k_prev) % 8, np.uint8)
+        s["prev"] = _grow(s.get("prev"), k, np.int64)
+        s["ended"] = _grow(s.get("ended"), k_prev, np.int64)
+        ended = kern.match_entries_one(e_prev, e, s["prev"], s["matched"], s["ended"])
+        if ended < 0:
+            return None
+        self.matched_by = "entries"
+        self._set = 1 - self._set
+        self.previous_rows, self.ended_rows = s["prev"][:k], s["ended"][:ended]
+        self._k_prev, self._k = k_prev, k
+        self._new = None
+        return e
 
     def _by_entry(self, e, e_prev, out, matched, kernels, chunks):
         """Match by entry in one kept list (``match_entries``); False (nothing

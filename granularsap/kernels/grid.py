@@ -892,7 +892,10 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
     ``exact``), re-testing the band on the given positions ``xg`` with the wrap
     shifts ``kw``; the fill pass of a frame that is not exact computes every
     pair with a wrapped end on ``xg`` (``_unwrapped``: the others' sum on ``ws``
-    is the same one; the same decisions, so the counts hold)."""
+    is the same one; the same decisions, so the counts hold).  The fill pass
+    leaves in ``counts[c]`` the number of rows it wrote: given room for every
+    entry of a chunk (``counts[c]`` its entries), it is the whole frame in one
+    pass (``VerletList.retest`` on one chunk)."""
     incl = not strict
     want_e = out_e.shape[0] > 0
     for c in numba.prange(wstart.shape[0]):
@@ -974,8 +977,9 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
                 if want_e:
                     out_e[o] = 64 * r + np.int64(q - ubase)
                 o += np.int64(ok)
-        if not fill:
-            counts[c] = cnt
+        # pass 2 leaves the number it wrote: with room for every entry of the
+        # chunk (``counts[c]`` its entries), one pass is the frame
+        counts[c] = (o - offsets[c]) if fill else cnt
 
 # ------------------------------------------------------------ Verlet frames
 

@@ -425,6 +425,37 @@ def match_entries(prev_entries, entries, bounds, prev_rows, matched, rising):
                 prev_rows[r] = -1
 
 
+@jit
+def match_entries_one(prev_entries, entries, prev_rows, matched, ended):
+    """``match_entries`` on one chunk, then the previous rows not found into
+    ``ended`` (ascending), in one serial call (a small Verlet frame's whole
+    matching): returns their number, or -1 when ``entries`` does not increase
+    (nothing written that counts).  ``matched`` has room for every previous
+    row."""
+    k_prev = prev_entries.shape[0]
+    for q in range(k_prev):
+        matched[q] = 0
+    q = 0
+    for r in range(entries.shape[0]):
+        v = entries[r]
+        if r > 0 and v <= entries[r - 1]:
+            return -1
+        while q < k_prev and prev_entries[q] < v:
+            q += 1
+        if q < k_prev and prev_entries[q] == v:
+            prev_rows[r] = q
+            matched[q] = 1
+            q += 1
+        else:
+            prev_rows[r] = -1
+    e = 0
+    for q in range(k_prev):
+        if matched[q] == 0:
+            ended[e] = q
+            e += 1
+    return e
+
+
 @pjit
 def entries_rising(entries, bounds, rising):
     """``rising[c]``: whether ``entries[bounds[c]:bounds[c + 1]]`` increases."""

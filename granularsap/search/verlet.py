@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 _NO_ENTRIES = np.zeros(0, np.int64)
+_ZERO = np.zeros(1, np.int64)  # the offset of a single chunk
 
 
 class VerletList:
@@ -60,6 +61,16 @@ class VerletList:
         since the build, ``rs`` half ranges, ``band`` the frame's
         ``columns.Band``, ``want`` (distances, vectors, shifts)."""
         lo2, hi2, dtol, exact, xg, perm, ks = band
+        if self.kind == "records" and len(self.wstart) == 1:
+            # one chunk (a small frame): the fill pass alone, with room for every
+            # entry of the list, leaves the number of pairs it wrote
+            room = self.counts.copy()
+            out.fit(int(room[0]))
+            kern.records_narrow(True, self.wstart, self.wneed, _ZERO, room,
+                                *self.sweep.records, ws, m, rs, skin, cell, diag, strict,
+                                uniform, x2, lo2, hi2, dtol, exact, xg, perm, ks, *want,
+                                out.p, out.d, out.v, out.s, out.e)
+            return int(room[0])
         if self.kind == "rows":
             rows = self.chunk_rows
             counts = np.empty(len(rows) - 1, np.int64)
