@@ -178,6 +178,35 @@ class TestSphereContacts:
         wp, _, wcp = _clump_oracle(pos, radii, ids, 0.0, _cell(BOXES[box]))
         assert np.array_equal(_sorted(sp)[0], wp) and np.array_equal(cp, wcp)
 
+    @pytest.mark.parametrize("box", ["none", "ortho", "triclinic"])
+    def test_verlet_frames_in_several_chunks(self, box, monkeypatch):
+        # a kept Verlet list re-tested on one thread writes each chunk's pairs
+        # with room for all its entries, then closes the chunks up: the rows and
+        # their order are those of the two passes two threads run, and the
+        # pairs those of the brute force, frame after frame
+        import granularsap.search.plan
+        from granularsap import ContactSearch
+
+        monkeypatch.setattr(granularsap.search.plan, "CHUNK", 16)  # many chunks
+        rng = np.random.default_rng(21)
+        pos = _points(21, 120)
+        radii = rng.uniform(0.1, 1.0, 120)
+        one = ContactSearch(rebuild_margin=0.4, quantities="PdDS", n_threads=1, identity=True)
+        two = ContactSearch(rebuild_margin=0.4, quantities="PdDS", n_threads=2, identity=True)
+        kept = 0
+        for _ in range(6):
+            pos = pos + rng.normal(0.0, 0.02, pos.shape)
+            a = one.update(pos, radii, BOXES[box], copy=True)
+            b = two.update(pos, radii, BOXES[box], copy=True)
+            kept += not one.stats["rebuilt"]
+            assert len(one._verlet.counts) > 1
+            for x, y in zip(a, b, strict=True):
+                assert np.array_equal(x, y)
+            assert np.array_equal(one.previous_rows, two.previous_rows)
+            assert np.array_equal(one.ended_rows, two.ended_rows)
+            _assert_pairs(a[:2], brute_image_pairs(pos, 0.0, _cell(BOXES[box]), radii=radii))
+        assert kept >= 3  # the list was kept, not rebuilt, on most frames
+
     def test_thread_count_does_not_change_result(self):
         rng = np.random.default_rng(5)
         pos = rng.uniform(0, 20, (3000, 3))

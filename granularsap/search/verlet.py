@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..kernels import grid
+
 _NO_ENTRIES = np.zeros(0, np.int64)
 _ZERO = np.zeros(1, np.int64)  # the offset of a single chunk
 
@@ -61,16 +63,21 @@ class VerletList:
         since the build, ``rs`` half ranges, ``band`` the frame's
         ``columns.Band``, ``want`` (distances, vectors, shifts)."""
         lo2, hi2, dtol, exact, xg, perm, ks = band
-        if self.kind == "records" and len(self.wstart) == 1:
-            # one chunk (a small frame): the fill pass alone, with room for every
-            # entry of the list, leaves the number of pairs it wrote
+        if self.kind == "records" and (len(self.wstart) == 1 or kern is grid.serial):
+            # one chunk, or chunks one after another: the fill pass alone, with
+            # room for every entry of each chunk, leaves the number of pairs it
+            # wrote; the chunks' rows then close up, in order
             room = self.counts.copy()
-            out.fit(int(room[0]))
-            kern.records_narrow(True, self.wstart, self.wneed, _ZERO, room,
+            offsets = _ZERO
+            if len(room) > 1:
+                offsets = np.zeros(len(room), np.int64)
+                np.cumsum(room[:-1], out=offsets[1:])
+            out.fit(int(room.sum()))
+            kern.records_narrow(True, self.wstart, self.wneed, offsets, room,
                                 *self.sweep.records, ws, m, rs, skin, cell, diag, strict,
                                 uniform, x2, lo2, hi2, dtol, exact, xg, perm, ks, *want,
                                 out.p, out.d, out.v, out.s, out.e)
-            return int(room[0])
+            return _close_up(out, offsets, room)
         if self.kind == "rows":
             rows = self.chunk_rows
             counts = np.empty(len(rows) - 1, np.int64)
@@ -97,3 +104,17 @@ class VerletList:
                                 uniform, x2, lo2, hi2, dtol, exact, xg, perm, ks, *want,
                                 out.p, out.d, out.v, out.s, out.e)
         return total
+
+
+def _close_up(out, offsets, counts):
+    """Chunk ``c``'s ``counts[c]`` rows, written from ``offsets[c]`` in ``out``,
+    moved to follow chunk ``c - 1``'s; the number of rows."""
+    dst = int(counts[0])
+    for c in range(1, len(counts)):
+        k, src = int(counts[c]), int(offsets[c])
+        if k and src != dst:
+            for a in (out.p, out.d, out.v, out.s, out.e):
+                if len(a):
+                    a[dst:dst + k] = a[src:src + k]
+        dst += k
+    return dst
