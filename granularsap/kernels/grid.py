@@ -1239,12 +1239,13 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                 lp = ls[p] if use_label else 0
                 # the shifts along the sweep axis whose images can meet the window
                 # (t in [0, 1] on a periodic axis): k + 1 >= lo_v and k <= hi_v
-                if p2:
-                    k_lo = 0 if own else np.int64(math.ceil(lo_v)) - 1
+                k_lo = 0
+                k_hi = 0
+                if p2 and not (lo_v > 0.0 and hi_v < 1.0):
+                    # (a window inside the cell meets the images of shift 0 only)
+                    if not own:
+                        k_lo = np.int64(math.ceil(lo_v)) - 1
                     k_hi = np.int64(math.floor(hi_v))
-                else:
-                    k_lo = 0
-                    k_hi = 0
                 for ka in range(k_lo, k_hi + 1):
                     kf = float(ka)
                     qa = zidx[zrow + _zbucket(lo_v - kf, zlo, inv_bz, ztop)]
