@@ -34,6 +34,8 @@ __all__ = ["ContactIdentity", "PairIdentity", "as_ids"]
 
 #: below this many rows the serial kernels run (a parallel region costs more)
 _PARALLEL_MIN = 50000
+#: slots of the pair matching's hash table per part filled by one thread
+_PART_SLOTS = 4096
 _NO_SHIFTS = np.zeros((0, 3), np.int64)
 _NO_ROWS = np.zeros(0, np.int64)
 
@@ -610,10 +612,16 @@ class PairIdentity(_Rows):
         if len(self._table) != size:
             self._table = np.empty((size, 3), np.int64)
         shift = 64 - (size.bit_length() - 1)
-        e = kern.match_rest(pairs, m, mapped, prev[2], self.shifts, shifts, jumps, prev_pairs,
-                            prev[1], bounds, todo, todo_counts, left, shift, self._table, out,
-                            matched, ended)
-        return ended[:e]
+        # the table in parts filled in parallel: a power of two of them, at most
+        # one per chunk and one per _PART_SLOTS slots
+        parts = 1
+        while 2 * parts <= chunks and size // (2 * parts) >= _PART_SLOTS:
+            parts *= 2
+        kernels.rest_table(prev_pairs, prev[1], self.shifts, left, shift, parts, self._table)
+        kernels.match_rest(pairs, m, mapped, prev[2], self.shifts, shifts, jumps, prev_pairs,
+                           prev[1], bounds, todo, todo_counts, shift, parts, self._table, out,
+                           matched)
+        return ended[:kern.rest_ended(left, matched, ended)]
 
     # -------------------------------------------------------------- clumps
     def _track_clumps(self, pairs, labels):

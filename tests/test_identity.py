@@ -27,8 +27,9 @@ CELL = np.eye(3) * L
 @pytest.fixture(params=[1, 2], ids=["1thread", "2threads"])
 def threads(request, monkeypatch):
     """1 or 2 numba threads, with the identity kernels chunked even on small inputs
-    (so that 2 threads really split the work)."""
+    (so that 2 threads really split the work, the hash tables of pass 2 too)."""
     monkeypatch.setattr(identity_module, "_PARALLEL_MIN", 0)
+    monkeypatch.setattr(identity_module, "_PART_SLOTS", 16)  # hash tables in parts too
     return request.param
 
 
@@ -280,6 +281,30 @@ class TestAgainstOracle:
         np.testing.assert_array_equal(runs[0][0], runs[1][0])
         np.testing.assert_array_equal(runs[0][1], runs[1][1])
         assert np.all(runs[0][0] >= 0)
+
+
+def test_shuffled_pairs_go_through_the_hash_table(threads):
+    # pairs in a new order every call defeat pass 1's cursor: nearly all are
+    # matched by pass 2, its table filled in parts (the fixture makes them small,
+    # with probes that run into the next part's slots) and looked up in parallel
+    rng = np.random.default_rng(31)
+    n = 3000
+    universe = np.unique(np.sort(rng.integers(0, n, (20000, 2)), axis=1), axis=0)
+    universe = universe[universe[:, 0] < universe[:, 1]]
+    track = PairIdentity(n_threads=threads)
+    prev = None
+    for _ in range(4):
+        pairs = universe[rng.random(len(universe)) < 0.8]
+        pairs = pairs[rng.permutation(len(pairs))]
+        rows = track.update(pairs, n)
+        if prev is not None:
+            where = {tuple(p): q for q, p in enumerate(prev.tolist())}
+            want = np.array([where.get(tuple(p), -1) for p in pairs.tolist()])
+            np.testing.assert_array_equal(rows, want)
+            ended = np.setdiff1d(np.arange(len(prev)), want[want >= 0])
+            np.testing.assert_array_equal(track.ended_rows, ended)
+            assert track.matched_by == "pairs" and track._last_counts[0] > len(pairs) // 2
+        prev = pairs
 
 
 class TestOneKeptList:

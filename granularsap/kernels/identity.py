@@ -21,7 +21,8 @@ its previous row:
    reads; the others cost at most ``2 _NEAR`` comparisons in cache.
 2. ``match_rest``: the pairs pass 1 did not find (their particles crossed a
    column, or they are new) against the previous rows it did not find,
-   through an open-addressing hash table of the latter.  A continuing pair
+   through an open-addressing hash table of the latter (``rest_table``: in
+   parts, one thread each; looked up chunk by chunk in parallel).  A continuing pair
    missed by pass 1 is always among those rows (a previous row is the row of
    one pair only), so the answer is exact and does not depend on how the
    rows were chunked or on the thread count.
@@ -190,7 +191,7 @@ _RESYNC = 1024
 _ANCHORS = 8
 
 
-@ijit
+@jit
 def _find_near(prev_pairs, prev_shifts, with_shift, g, reach, lo, hi, s0, s1, s2):
     """The previous row of ``(lo, hi, s)`` within ``reach`` rows of ``g``, nearest
     first, or -1."""
@@ -265,6 +266,39 @@ def _in_step_chunk(c, pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_
     todo_counts[c] = nt - lo_r
 
 
+# Each variant's chunk is its own compiled function (``mapped`` and
+# ``with_shift`` constants there, so that their branches compile away) which the
+# parallel kernel and its serial twin both call: the body compiles once per
+# variant, not once inside each kernel.
+
+@jit
+def _chunk(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds, reach,
+           prev_rows, matched, todo, todo_counts):
+    _in_step_chunk(c, pairs, m, False, n_prev, False, shifts, jumps, prev_pairs, prev_shifts,
+                   bounds, reach, prev_rows, matched, todo, todo_counts)
+
+
+@jit
+def _chunk_ids(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds, reach,
+               prev_rows, matched, todo, todo_counts):
+    _in_step_chunk(c, pairs, m, True, n_prev, False, shifts, jumps, prev_pairs, prev_shifts,
+                   bounds, reach, prev_rows, matched, todo, todo_counts)
+
+
+@jit
+def _chunk_shifts(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds, reach,
+                  prev_rows, matched, todo, todo_counts):
+    _in_step_chunk(c, pairs, m, False, n_prev, True, shifts, jumps, prev_pairs, prev_shifts,
+                   bounds, reach, prev_rows, matched, todo, todo_counts)
+
+
+@jit
+def _chunk_ids_shifts(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds, reach,
+                      prev_rows, matched, todo, todo_counts):
+    _in_step_chunk(c, pairs, m, True, n_prev, True, shifts, jumps, prev_pairs, prev_shifts,
+                   bounds, reach, prev_rows, matched, todo, todo_counts)
+
+
 @pjit
 def match_in_step(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds, reach,
                   prev_rows, matched, todo, todo_counts):
@@ -277,8 +311,8 @@ def match_in_step(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, boun
     ``c`` (rows ``bounds[c]:bounds[c + 1]``) places its cursor by finding one of
     its first pairs within ``reach`` rows of its share of the previous list."""
     for c in numba.prange(bounds.shape[0] - 1):
-        _in_step_chunk(c, pairs, m, False, n_prev, False, shifts, jumps, prev_pairs,
-                       prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts)
+        _chunk(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
+               reach, prev_rows, matched, todo, todo_counts)
 
 
 @pjit
@@ -286,8 +320,8 @@ def match_in_step_ids(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, 
                       reach, prev_rows, matched, todo, todo_counts):
     """``match_in_step`` with particles mapped to previous rows by ``m``."""
     for c in numba.prange(bounds.shape[0] - 1):
-        _in_step_chunk(c, pairs, m, True, n_prev, False, shifts, jumps, prev_pairs,
-                       prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts)
+        _chunk_ids(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
+                   reach, prev_rows, matched, todo, todo_counts)
 
 
 @pjit
@@ -295,8 +329,8 @@ def match_in_step_shifts(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shift
                          reach, prev_rows, matched, todo, todo_counts):
     """``match_in_step`` by row and lattice shift (corrected by ``jumps``)."""
     for c in numba.prange(bounds.shape[0] - 1):
-        _in_step_chunk(c, pairs, m, False, n_prev, True, shifts, jumps, prev_pairs,
-                       prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts)
+        _chunk_shifts(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
+                      reach, prev_rows, matched, todo, todo_counts)
 
 
 @pjit
@@ -304,8 +338,8 @@ def match_in_step_ids_shifts(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_s
                              reach, prev_rows, matched, todo, todo_counts):
     """``match_in_step`` by ``m`` and lattice shift."""
     for c in numba.prange(bounds.shape[0] - 1):
-        _in_step_chunk(c, pairs, m, True, n_prev, True, shifts, jumps, prev_pairs,
-                       prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts)
+        _chunk_ids_shifts(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
+                          reach, prev_rows, matched, todo, todo_counts)
 
 
 @ijit
@@ -317,29 +351,56 @@ def _hash5(lo, hi, s0, s1, s2, mask, shift):
     return np.int64(h >> shift) & mask
 
 
-@jit
-def match_rest(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, prev_shifts,
-               bounds, todo, todo_counts, left, shift, table, prev_rows, matched, ended):
-    """Pass 2 of the pair matching: the pairs pass 1 left (``todo``) against the
-    previous rows it left (``left``, ascending), through a hash table of the
-    latter (``table`` (size, 3): canonical rows, and the previous row, or -1).
-    Writes the previous rows still unmatched after it to ``ended`` (ascending)
-    and returns their number."""
+@pjit
+def rest_table(prev_pairs, prev_shifts, with_shift, left, shift, parts, table):
+    """The hash table of pass 2 (``match_rest``): the previous rows pass 1 left
+    (``left``), each at the slot of its canonical key (``table`` (size, 3): the
+    key's two rows and the previous row, or -1 for an empty slot).  The table
+    is ``parts`` equal parts (a power of two), each filled by one thread with
+    the keys that hash into it, probing within it (``_next_slot``): every key
+    lands where one thread alone would put it, in the order of ``left``."""
     size = table.shape[0]
     mask = np.int64(size - 1)
     ushift = np.uint64(shift)
-    for s in range(size):
-        table[s, 2] = -1
-    for i in range(left.shape[0]):
-        q = left[i]
-        lo, hi, t0, t1, t2 = _prev_key(prev_pairs, prev_shifts, with_shift, q)
-        s = _hash5(lo, hi, t0, t1, t2, mask, ushift)
-        while table[s, 2] >= 0:
-            s = (s + 1) & mask
-        table[s, 0] = lo
-        table[s, 1] = hi
-        table[s, 2] = q
-    for c in range(bounds.shape[0] - 1):
+    psize = size // parts
+    pmask = np.int64(psize - 1)
+    for part in numba.prange(parts):
+        base = part * psize
+        for s in range(base, base + psize):
+            table[s, 2] = -1
+        for i in range(left.shape[0]):
+            q = left[i]
+            lo, hi, t0, t1, t2 = _prev_key(prev_pairs, prev_shifts, with_shift, q)
+            s = _hash5(lo, hi, t0, t1, t2, mask, ushift)
+            if s - base < 0 or s - base >= psize:
+                continue
+            while table[s, 2] >= 0:
+                s = _next_slot(s, pmask)
+            table[s, 0] = lo
+            table[s, 1] = hi
+            table[s, 2] = q
+
+
+@ijit
+def _next_slot(s, pmask):
+    """The slot after ``s`` within its part of the table (parts ``pmask + 1``
+    slots long, a power of two)."""
+    return (s & ~pmask) | ((s + 1) & pmask)
+
+
+@pjit
+def match_rest(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, prev_shifts,
+               bounds, todo, todo_counts, shift, parts, table, prev_rows, matched):
+    """Pass 2 of the pair matching: the pairs pass 1 left (``todo``, chunk ``c``'s
+    from ``bounds[c]``, ``todo_counts[c]`` of them) looked up in the table of
+    the previous rows it left (``rest_table``), chunk by chunk in parallel (a
+    previous row is the row of one pair only: no two lookups write the same
+    ``matched[q]``).  Without shifts the key's two rows are the pair."""
+    size = table.shape[0]
+    mask = np.int64(size - 1)
+    ushift = np.uint64(shift)
+    pmask = np.int64(size // parts - 1)
+    for c in numba.prange(bounds.shape[0] - 1):
         for i in range(bounds[c], bounds[c] + todo_counts[c]):
             r = todo[i]
             lo, hi, s0, s1, s2 = _key_of(pairs, m, mapped, n_prev, with_shift, shifts,
@@ -348,11 +409,19 @@ def match_rest(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, 
             while table[s, 2] >= 0:
                 q = table[s, 2]
                 if (table[s, 0] == lo and table[s, 1] == hi
-                        and _is(prev_pairs, prev_shifts, with_shift, q, lo, hi, s0, s1, s2)):
+                        and (not with_shift
+                             or _is(prev_pairs, prev_shifts, with_shift, q, lo, hi, s0, s1,
+                                    s2))):
                     prev_rows[r] = q
                     matched[q] = 1
                     break
-                s = (s + 1) & mask
+                s = _next_slot(s, pmask)
+
+
+@jit
+def rest_ended(left, matched, ended):
+    """The rows of ``left`` (ascending) still unmatched after pass 2, into
+    ``ended``; returns their number."""
     e = 0
     for i in range(left.shape[0]):
         q = left[i]
@@ -545,4 +614,4 @@ def match_keys(keys, prev_keys, shift, slots, bounds, prev_rows, matched):
 serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in (
     "match_in_step", "match_in_step_ids", "match_in_step_shifts",
     "match_in_step_ids_shifts", "match_entries", "entries_rising",
-    "unmatched_words", "match_keys")})
+    "unmatched_words", "match_keys", "rest_table", "match_rest")})
