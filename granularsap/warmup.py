@@ -49,8 +49,8 @@ ALIASES = {"sphere_contacts": "contacts", "neighbor_pairs": "contacts",
 #: kept for callers of the first version: the public functions of the contacts group
 FUNCTIONS = ("sphere_contacts", "neighbor_pairs", "clump_contacts", "box_overlaps")
 
-NOTICE = ("granularsap: compiling numba kernels on first use (once, about 40 s; they are "
-          "cached for the next runs; `granularsap warmup` compiles them ahead)")
+NOTICE = ("granularsap: compiling numba kernels on first use (once: seconds for one kind of "
+          "frame; they are cached for the next runs; `granularsap warmup` compiles them ahead)")
 
 
 def _ours(dispatcher):
