@@ -309,20 +309,19 @@ def _warm_identity(pos, radii, clumps, boxes, nt, rng):
             for _ in range(2):
                 every.update(pos, box, ids=dense)
     # identity's parallel kernels run from 50,000 pairs on (whatever the frame's size);
-    # the particles re-ordered and moved on the second call, so that pairs leave
-    # the cursor and the hash table of pass 2 runs too
+    # the particles moved on the second call, so that pairs leave the cursor and
+    # the hash table of pass 2 runs too
     big = rng.uniform(0.0, 10.0, (20_000, 3))
     big_ids = (np.arange(len(big), dtype=np.int64), rng.permutation(len(big)) * 1_000_003)
-    order = rng.permutation(len(big))
-    labels = np.arange(len(big)) // 2
+    moved = big + rng.normal(0.0, 0.05, big.shape)
     for ids in big_ids:
         s = granularsap.ContactSearch(skin=0.3, identity=True, n_threads=nt)
         nb = granularsap.NeighborSearch(0.6, periodic_images="all", identity=True,
                                         n_threads=nt)
-        for x, i, lab in ((big, ids, labels), (big + 0.01, ids, labels),
-                          ((big + 0.02)[order], ids[order], labels[order])):
-            s.update(x, 0.15, [10, 10, 10, 90, 90, 90], ids=i, clump_ids=lab)
-            nb.update(x, [10, 10, 10, 90, 90, 90], ids=i)
+        for x in (big, moved):
+            s.update(x, 0.15, [10, 10, 10, 90, 90, 90], ids=ids,
+                     clump_ids=np.arange(len(big)) // 2)
+            nb.update(x, [10, 10, 10, 90, 90, 90], ids=ids)
     from .identity import ContactIdentity
 
     for rows in (n, 60_000):
