@@ -502,11 +502,7 @@ class PairIdentity(_Rows):
                     self._track_clumps(pairs, labels)
                     self._entries = (entries[0], e if borrow else e.copy())
                     self._checked = None
-                    keep = (np.array(positions, dtype=np.float64)
-                            if self.shifts and positions is not None else None)
-                    self._prev = (pairs, shifts, int(n), None if ids is None else ids.copy(),
-                                  keep)
-                    return self.previous_rows
+                    return self._remember(pairs, shifts, n, ids, positions)
             matched = self._matched(k_prev)
 
             def fill_rows(out, sets):
@@ -532,6 +528,11 @@ class PairIdentity(_Rows):
                 if len(e) == k and self._rising(e, kernels, chunks):
                     self._entries = (entries[0], e if borrow else e.copy())
             self._checked = None
+        return self._remember(pairs, shifts, n, ids, positions)
+
+    def _remember(self, pairs, shifts, n, ids, positions):
+        """Keep what the next call matches against (the positions only when
+        shifts are matched: they tell the image jumps); ``previous_rows``."""
         keep = None
         if self.shifts and positions is not None:
             keep = np.array(positions, dtype=np.float64)

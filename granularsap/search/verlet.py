@@ -109,6 +109,8 @@ class VerletList:
 def _close_up(out, offsets, counts):
     """Chunk ``c``'s ``counts[c]`` rows, written from ``offsets[c]`` in ``out``,
     moved to follow chunk ``c - 1``'s; the number of rows."""
+    if not len(counts):
+        return 0
     dst = int(counts[0])
     for c in range(1, len(counts)):
         k, src = int(counts[c]), int(offsets[c])
