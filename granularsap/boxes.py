@@ -229,6 +229,7 @@ class SweepAndPrune:
         self._g_avoid_reason = ""
         # cross-set queries: the second set, its grid and binning of the last call
         self._cross_kept = None
+        self._cross_memo = {}  # the last plan of the kept second set's grid
 
     # ------------------------------------------------------------------ buffers
     def _ensure(self, n, parts, buckets):
@@ -374,15 +375,15 @@ class SweepAndPrune:
         kept = False
         with num_threads(threads) as threads:
             kern = _cross if threads > 1 else _cross.serial
-            plan = None if n == 0 or m == 0 else _cross_grid_plan(lower, upper, lower_b,
-                                                                  upper_b, kept=True)
+            plan = None if n == 0 or m == 0 else _cross_grid_plan(
+                lower, upper, lower_b, upper_b, kept=True, memo=self._cross_memo)
             if plan is None:
                 pairs = np.empty((0, 2), np.int64)
             else:
                 c = self._cross_kept
-                kept = (c is not None and all(np.array_equal(a, b) for a, b in zip(
-                    c[2], plan, strict=True)) and np.array_equal(c[0], lower_b)
-                        and np.array_equal(c[1], upper_b))
+                kept = (c is not None and (c[2] is plan or all(
+                    np.array_equal(a, b) for a, b in zip(c[2], plan, strict=True)))
+                        and np.array_equal(c[0], lower_b) and np.array_equal(c[1], upper_b))
                 if kept:
                     binned = c[3]
                 else:
@@ -954,14 +955,16 @@ def _cross_sweep(kern, lower, upper, lower_b, upper_b, rows_a, rows_b):
     return out
 
 
-def _cross_grid_plan(lower, upper, lower_b, upper_b, *, kept=False):
+def _cross_grid_plan(lower, upper, lower_b, upper_b, *, kept=False, memo=None):
     """The grid of the cross-set query: (lower corner, upper corner, inverse cell
     sides, cells per axis), or None when no box can overlap.
 
     One call (``kept=False``) grids the region where both sets' spans meet.
     A kept second set (``kept=True``, ``SweepAndPrune``) grids the second
     set's own span with cell sides rounded up to a power of two, so that the
-    grid, and the second set's binning, stay while that set does.
+    grid, and the second set's binning, stay while that set does; ``memo`` (a
+    dict) then keeps the last plan, returned itself (the same tuple) while the
+    second set's span, the rounded sides and the count are the same.
     """
     lo_a, hi_a, side_a = np.empty(3), np.empty(3), np.empty(3)
     lo_b, hi_b, side_b = np.empty(3), np.empty(3), np.empty(3)
@@ -980,6 +983,11 @@ def _cross_grid_plan(lower, upper, lower_b, upper_b, *, kept=False):
         side = np.maximum(side_a, side_b)
         if kept:
             side = np.where(side > 0, np.exp2(np.ceil(np.log2(side))), side)
+            if memo is not None:
+                key = (lo.tobytes(), hi.tobytes(), side.tobytes(), n_all)
+                last = memo.get("plan")
+                if last is not None and last[0] == key:
+                    return last[1]
         dims = np.ones(3)
         for c in range(3):
             if not (ext[c] > 0 and np.isfinite(ext[c])):
@@ -994,7 +1002,10 @@ def _cross_grid_plan(lower, upper, lower_b, upper_b, *, kept=False):
         inv = np.where(dims > 1, dims / np.where(ext > 0, ext, 1.0), 0.0)
         inv = np.where(np.isfinite(inv), inv, 0.0)
     dims = np.where(inv > 0, dims, 1.0).astype(np.int64)
-    return lo, hi, inv, dims
+    plan = (lo, hi, inv, dims)
+    if kept and memo is not None:
+        memo["plan"] = (key, plan)
+    return plan
 
 
 def _cross_bin(kern, lower_b, upper_b, plan):

@@ -1024,9 +1024,11 @@ class TestCrossBoxes:
         ub = lb + rng.uniform(0, 0.6, lb.shape)
         la = rng.uniform(0, 10, (800, 3))
         kept = []
-        for frame in range(8):
+        for frame in range(11):
             la = la + rng.normal(0, 0.05, la.shape)
-            ua = la + 0.4
+            # the first set's boxes grow past a power of two from frame 8: the
+            # grid's cells (and the kept plan) follow, then stay again
+            ua = la + (0.4 if frame < 8 else 1.5)
             if frame == 5:
                 lb = lb + 0.01  # the second set moved: binned again
                 ub = ub + 0.01
@@ -1034,7 +1036,7 @@ class TestCrossBoxes:
             np.testing.assert_array_equal(got, brute_cross(la, ua, lb, ub))
             kept.append(engine.stats["second_set_kept"])
             assert engine.stats["path"] == "cross"
-        assert kept == [False, True, True, True, True, False, True, True]
+        assert kept == [False, True, True, True, True, False, True, True, False, True, True]
         # and the engine still answers within one set
         within = engine.update(la, ua)
         within = within[np.lexsort((within[:, 1], within[:, 0]))]
