@@ -496,13 +496,6 @@ class PairIdentity(_Rows):
             same_list = (entries is not None and prev_entries is not None and m is None
                          and int(n) == prev[2] and prev_entries[0] == entries[0]
                          and len(prev_entries[1]) == k_prev and len(entries[1]) == k)
-            if same_list and chunks == 1 and k and k_prev:
-                e = self._by_entry_one(entries[1], prev_entries[1], k, k_prev)
-                if e is not None:
-                    self._track_clumps(pairs, labels)
-                    self._entries = (entries[0], e if borrow else e.copy())
-                    self._checked = None
-                    return self._remember(pairs, shifts, n, ids, positions)
             matched = self._matched(k_prev)
 
             def fill_rows(out, sets):
@@ -511,9 +504,11 @@ class PairIdentity(_Rows):
                     out[:] = -1
                     return None
                 self.matched_by = "entries"
-                if same_list and self._by_entry(entries[1], prev_entries[1], out, matched,
-                                                kernels, chunks):
-                    return None
+                if same_list:
+                    done, ended = self._by_entry(entries[1], prev_entries[1], out, matched,
+                                                 kernels, chunks, sets)
+                    if done:
+                        return ended
                 self.matched_by = "pairs"
                 jumps = (self._jumps(positions, cell, pbc, m, prev) if self.shifts
                          else _NO_SHIFTS)
@@ -528,49 +523,36 @@ class PairIdentity(_Rows):
                 if len(e) == k and self._rising(e, kernels, chunks):
                     self._entries = (entries[0], e if borrow else e.copy())
             self._checked = None
-        return self._remember(pairs, shifts, n, ids, positions)
-
-    def _remember(self, pairs, shifts, n, ids, positions):
-        """Keep what the next call matches against (the positions only when
-        shifts are matched: they tell the image jumps); ``previous_rows``."""
         keep = None
         if self.shifts and positions is not None:
             keep = np.array(positions, dtype=np.float64)
         self._prev = (pairs, shifts, int(n), None if ids is None else ids.copy(), keep)
         return self.previous_rows
 
-    def _by_entry_one(self, e, e_prev, k, k_prev):
-        """The whole matching of a small call on the previous call's list, in one
-        serial kernel (``match_entries_one``): this call's maps published, and
-        ``e`` (int64) returned, or None when ``e`` does not increase (nothing
-        published)."""
+    def _by_entry(self, e, e_prev, out, matched, kernels, chunks, sets):
+        """Match by entry in one kept list (``match_entries``): (True, the ended
+        rows, or None for ``_publish`` to find them), or (False, None), nothing
+        written that counts, when this call's entries do not increase.  One chunk
+        takes one serial call, the ended rows included (``match_entries_one``)."""
         e = np.ascontiguousarray(e, dtype=np.int64)
-        s = self._sets[1 - self._set]
-        s["matched"] = _grow(s.get("matched"), k_prev + (-k_prev) % 8, np.uint8)
-        s["prev"] = _grow(s.get("prev"), k, np.int64)
-        s["ended"] = _grow(s.get("ended"), k_prev, np.int64)
-        ended = kern.match_entries_one(e_prev, e, s["prev"], s["matched"], s["ended"])
-        if ended < 0:
-            return None
-        self.matched_by = "entries"
-        self._set = 1 - self._set
-        self.previous_rows, self.ended_rows = s["prev"][:k], s["ended"][:ended]
-        self._k_prev, self._k = k_prev, k
-        self._new = None
-        return e
-
-    def _by_entry(self, e, e_prev, out, matched, kernels, chunks):
-        """Match by entry in one kept list (``match_entries``); False (nothing
-        written that counts) when this call's entries do not increase."""
-        e = np.ascontiguousarray(e, dtype=np.int64)
+        if chunks == 1:
+            k_prev = len(matched)
+            flags = sets["matched"][:k_prev + (-k_prev) % 8]  # padded, as _matched made it
+            sets["ended"] = _grow(sets.get("ended"), k_prev, np.int64)
+            ended = kern.match_entries_one(e_prev, e, out, flags, sets["ended"])
+            if ended >= 0:
+                self._checked = e
+                return True, sets["ended"][:ended]
+            matched[:] = 0
+            return False, None
         bounds = _bounds(len(e), chunks)
         rising = np.zeros(chunks, np.uint8)
         kernels.match_entries(e_prev, e, bounds, out, matched, rising)
         if rising.all() and self._joins_rise(e, bounds):
             self._checked = e
-            return True
+            return True, None
         matched[:] = 0
-        return False
+        return False, None
 
     @staticmethod
     def _joins_rise(e, bounds):

@@ -61,6 +61,7 @@ import numba
 import numpy as np
 
 from .._numba import ijit, jit, pjit, serial_twin
+from .common import lower_bound
 
 _MIX = np.uint64(0x9E3779B97F4A7C15)
 
@@ -461,54 +462,27 @@ def match_entries(prev_entries, entries, bounds, prev_rows, matched, rising):
     found.  Both increasing: chunk ``c`` of rows ``bounds[c]:bounds[c + 1]`` finds
     its first entry by bisection, then merges.  ``rising[c]`` says whether the
     chunk's entries increase (the caller checks the joins between chunks)."""
-    k_prev = prev_entries.shape[0]
     for c in numba.prange(bounds.shape[0] - 1):
-        lo = bounds[c]
-        end = bounds[c + 1]
-        rising[c] = 1
-        if lo >= end:
-            continue
-        v = entries[lo]
-        a = np.int64(0)
-        b = np.int64(k_prev)
-        while a < b:
-            mid = (a + b) >> 1
-            if prev_entries[mid] < v:
-                a = mid + 1
-            else:
-                b = mid
-        q = a
-        last = v - 1
-        for r in range(lo, end):
-            v = entries[r]
-            if v <= last:
-                rising[c] = 0
-            last = v
-            while q < k_prev and prev_entries[q] < v:
-                q += 1
-            if q < k_prev and prev_entries[q] == v:
-                prev_rows[r] = q
-                matched[q] = 1
-                q += 1
-            else:
-                prev_rows[r] = -1
+        rising[c] = _merge_entries(prev_entries, entries, bounds[c], bounds[c + 1],
+                                   prev_rows, matched)
 
 
-@jit
-def match_entries_one(prev_entries, entries, prev_rows, matched, ended):
-    """``match_entries`` on one chunk, then the previous rows not found into
-    ``ended`` (ascending), in one serial call (a small Verlet frame's whole
-    matching): returns their number, or -1 when ``entries`` does not increase
-    (nothing written that counts).  ``matched`` has room for every previous
-    row."""
+@ijit
+def _merge_entries(prev_entries, entries, lo, end, prev_rows, matched):
+    """Rows ``lo:end`` of ``match_entries``: the first entry found by bisection,
+    then a merge; whether those entries increase."""
+    if lo >= end:
+        return True
     k_prev = prev_entries.shape[0]
-    for q in range(k_prev):
-        matched[q] = 0
-    q = 0
-    for r in range(entries.shape[0]):
+    v = entries[lo]
+    q = lower_bound(prev_entries, np.int64(0), np.int64(k_prev), v)
+    last = v - 1
+    rising = True
+    for r in range(lo, end):
         v = entries[r]
-        if r > 0 and v <= entries[r - 1]:
-            return -1
+        if v <= last:
+            rising = False
+        last = v
         while q < k_prev and prev_entries[q] < v:
             q += 1
         if q < k_prev and prev_entries[q] == v:
@@ -517,12 +491,20 @@ def match_entries_one(prev_entries, entries, prev_rows, matched, ended):
             q += 1
         else:
             prev_rows[r] = -1
-    e = 0
-    for q in range(k_prev):
-        if matched[q] == 0:
-            ended[e] = q
-            e += 1
-    return e
+    return rising
+
+
+@jit
+def match_entries_one(prev_entries, entries, prev_rows, flags, ended):
+    """``match_entries`` on one chunk, then the previous rows not found into
+    ``ended`` (``unmatched_into``), in one serial call (a small Verlet frame's
+    whole matching): returns their number, or -1 when ``entries`` does not
+    increase (nothing written that counts).  ``flags``: ``matched`` zeroed and
+    padded as ``unmatched_words`` reads it."""
+    if not _merge_entries(prev_entries, entries, 0, entries.shape[0], prev_rows,
+                          flags[:prev_entries.shape[0]]):
+        return -1
+    return unmatched_into(flags, ended)
 
 
 @pjit
