@@ -151,6 +151,64 @@ def test_polydisperse_frames_equal_the_general_path(kind):
     _same(small, general)
 
 
+@pytest.mark.parametrize("kind", ["periodic", "open-z", "triclinic"])
+def test_sparse_small_frames_take_wider_columns(kind):
+    # polydisperse spheres hold about 5 candidates per range-wide column window:
+    # frames the small-frame kernel takes on any thread count widen their
+    # columns (plan.wide_columns), the general path and two threads alike, and
+    # the answer is still the oracle's
+    pos, radii, length = _granular(1000, 11)
+    box, pbc = [length] * 3 + [90.0] * 3, None
+    if kind == "open-z":
+        pbc = (True, True, False)
+    elif kind == "triclinic":
+        box = [[length, 0, 0], [0.2 * length, length, 0], [0.1 * length, -0.3 * length, length]]
+    (small, s_stats), (general, g_stats) = _pair(pos, radii, box, pbc, quantities="PdS")
+    _same(small, general)
+    assert s_stats["columns"] == g_stats["columns"]
+    two = ContactSearch(quantities="PdS", n_threads=2).update(pos, radii, box, pbc=pbc)
+    _same(small, two)
+    # columns one range wide would be about the cell's width over 2 rmax
+    cell = Cell.coerce(box, pbc=pbc)
+    range_wide = int(cell.perpendicular_widths[:2].min() / (2.0 * radii.max()))
+    assert max(s_stats["columns"]) < range_wide
+    p, d, _ = small
+    order = np.lexsort((p[:, 1], p[:, 0]))
+    assert np.array_equal(p[order], _nearby(pos, radii, cell))
+
+
+def _nearby(pos, radii, cell):
+    """Pairs i < j with d <= r_i + r_j over the 27 nearest images (a range below
+    half the cell), vectorised in blocks of rows."""
+    m = cell.matrix
+    shifts = np.array([a * m[0] + b * m[1] + c * m[2] for a in (-1, 0, 1) for b in (-1, 0, 1)
+                       for c in (-1, 0, 1) if all((a, b, c)[k] == 0 or cell.pbc[k]
+                                                  for k in range(3))])
+    out = []
+    for lo in range(0, len(pos), 64):
+        x = pos[lo:lo + 64]
+        sep = pos[None, :, None, :] + shifts[None, None] - x[:, None, None, :]
+        d = np.sqrt((sep ** 2).sum(axis=-1)).min(axis=-1)
+        i, j = np.nonzero(d <= radii[lo:lo + 64, None] + radii[None, :])
+        keep = lo + i < j
+        out.append(np.stack([lo + i[keep], j[keep]], axis=1))
+    return np.concatenate(out)
+
+
+def test_wide_columns_only_where_every_thread_count_takes_the_small_kernel():
+    from granularsap.kernels import grid
+    from granularsap.search import plan
+
+    # the small-frame kernel runs any thread count below two chunks of work
+    assert grid.WIDE_MAX == 2 * plan.CHUNK - 1
+    nb = plan.wide_columns([12, 12], np.ones(3), np.full(3, 1 / 12), 1000)
+    assert nb == [12 // 3, 12 // 3] or max(nb) < 12
+    # a dense frame keeps columns one range wide
+    assert plan.wide_columns([8, 8], np.ones(3), np.full(3, 1 / 8), 64 * 400) == [8, 8]
+    # no division by zero without particles
+    assert plan.wide_columns([4, 4], np.ones(3), np.full(3, 0.25), 0) == [1, 1]
+
+
 def test_two_levels_on_a_small_frame():
     # 2 % large spheres: the cost model splits the radii on the small path too
     rng = np.random.default_rng(8)

@@ -1368,6 +1368,16 @@ def loop_mode(diag, uniform, use_label, levels):
     return (True if fast else None), (True if not fast and not diag else None)
 
 
+#: a sparse frame's columns are widened, up to MAX_WIDEN times, until a window
+#: holds about WINDOW_TARGET candidates (``search.plan.wide_columns``), in
+#: frames of up to WIDE_MAX particles: those this kernel takes on any thread
+#: count (fewer than two chunks of parallel work, ``search.plan.CHUNK``), so
+#: that the general path, which plans them alike, stays as fast on larger ones
+WINDOW_TARGET = 25.0
+MAX_WIDEN = 3.0
+WIDE_MAX = 4095
+
+
 @jit
 def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x2,
                 guard_rel, r_small, fresh, prev, t, k, w, col, perm, start, cursor, tz, xs,
@@ -1407,7 +1417,8 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
     lo1 = 0.0
     span0 = 1.0
     span1 = 1.0
-    for c in range(2):
+    span2 = 1.0
+    for c in range(3):
         if not pbc[c]:
             mn = t[0, c]
             mx = t[0, c]
@@ -1418,9 +1429,11 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
             if c == 0:
                 lo0 = mn
                 span0 = mx - mn
-            else:
+            elif c == 1:
                 lo1 = mn
                 span1 = mx - mn
+            else:
+                span2 = mx - mn
     levels = r_small > 0.0
     bin_range = 2.0 * (r_small if levels else rmax) + reach + guard
     big_range = 2.0 * rmax + reach + guard
@@ -1438,6 +1451,17 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
             nb0 = max(1, nb0 // 2)
         else:
             nb1 = max(1, nb1 // 2)
+    if not levels and n <= WIDE_MAX:  # plan.wide_columns, the same arithmetic
+        per_window = n / (nb0 * nb1)
+        if span2 > 0:
+            along = (bin_range / widths[2]) / span2
+            per_window *= along if along < 1.0 else 1.0
+        if per_window < WINDOW_TARGET:
+            f = MAX_WIDEN
+            if per_window > 0.0:
+                f = min(MAX_WIDEN, math.sqrt(WINDOW_TARGET / per_window))
+            nb0 = max(1, int(math.floor(nb0 / f)))
+            nb1 = max(1, int(math.floor(nb1 / f)))
     inv0 = nb0 / span0 if span0 > 0 else 0.0
     inv1 = nb1 / span1 if span1 > 0 else 0.0
     f0 = span0 / nb0

@@ -514,7 +514,11 @@ class SearchEngine:
             volume = float(np.prod(span)) * cs.det
         r_small = self._split(rad, rmax, reach, n, span, cs, minimum)
         self._r_small = r_small
-        cp = plan.plan_columns(lo, span, pbc, widths, rmax, r_small, reach, guard, far, n)
+        # the frames the small-frame kernel takes on any thread count widen sparse
+        # columns as it does (the rows in the same order, on any thread count)
+        wide = self._margin == 0.0 and minimum and n <= grid.WIDE_MAX
+        cp = plan.plan_columns(lo, span, pbc, widths, rmax, r_small, reach, guard, far, n,
+                               wide)
         nb0, nb1 = cp.nb0, cp.nb1
         self._grid_shape = (nb0, nb1)
         ncol = nb0 * nb1

@@ -12,6 +12,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..kernels.grid import MAX_WIDEN, WINDOW_TARGET
+
 #: particles per chunk of parallel work (chunk boundaries never depend on threads)
 CHUNK = 2048
 MAX_CHUNKS = 1024
@@ -71,12 +73,44 @@ def column_counts(span, delta, n):
     return nb
 
 
-def plan_columns(lo, span, pbc, widths, rmax, r_small, reach, guard, far, n):
+def wide_columns(nb, span, delta, n):
+    """Columns along axes 0 and 1 widened for a sparse frame.
+
+    A particle's window in a stencil column costs a fixed setup (finding it,
+    entering and leaving its loops) besides its candidates, so columns one
+    range wide pay mostly setups when they hold few particles along the
+    window: widely spread radii (the range is set by the largest) or a dilute
+    frame.  The expected candidates of a window, ``n / (nb0 nb1)`` particles
+    per column times the window's share ``delta[2] / span[2]`` of the sweep
+    axis, set how much wider the columns get: by ``sqrt(WINDOW_TARGET /
+    that)``, at most ``MAX_WIDEN`` times (polydisperse spheres at volume
+    fraction 0.3, radii 0.3 to 3: about 5 per window, columns about twice as
+    wide).  Only frames a small-frame kernel may take (``wide`` of
+    ``plan_columns``): the per-particle windows of ``grid._small_sweep`` skip
+    the stencil columns out of a particle's own reach, the column-pair
+    windows of ``grid._sweep_chunk`` do not (on wider columns they test
+    several times the candidates).  The same arithmetic as
+    ``grid._small_plan``'s, so that a small frame gets the general path's
+    plan, rows in the same order.
+    """
+    per_window = n / (nb[0] * nb[1])
+    if span[2] > 0:
+        along = float(delta[2]) / float(span[2])
+        per_window *= along if along < 1.0 else 1.0
+    if not per_window < WINDOW_TARGET:
+        return nb
+    f = MAX_WIDEN if per_window <= 0.0 else min(MAX_WIDEN,
+                                                 math.sqrt(WINDOW_TARGET / per_window))
+    return [max(1, int(math.floor(nb[c] / f))) for c in range(2)]
+
+
+def plan_columns(lo, span, pbc, widths, rmax, r_small, reach, guard, far, n, wide=False):
     """The column plan of a frame of ``n`` particles whose wrapped fractions start
     at ``lo`` and extend ``span`` (``open_span``), in a cell of perpendicular
     ``widths`` and periodic axes ``pbc``.  Columns are one range ``2 r + reach +
     guard`` wide, ``r`` the largest radius (``rmax``) or that of the small
-    particles (``r_small``, two levels); the stencil reaches as many columns as
+    particles (``r_small``, two levels), or, with ``wide``, wider in a sparse
+    frame of one level (``wide_columns``); the stencil reaches as many columns as
     the range spans.  ``far``: coordinates far beyond the range along an open
     axis, where a column index may be off by its rounding (the stencil covers
     it)."""
@@ -84,6 +118,8 @@ def plan_columns(lo, span, pbc, widths, rmax, r_small, reach, guard, far, n):
     delta = bin_range / widths
     delta_big = (2.0 * rmax + reach + guard) / widths
     nb = column_counts(span, delta, n)
+    if wide and r_small is None:
+        nb = wide_columns(nb, span, delta, n)
     inv_f = np.zeros(3)
     layers = []
     layers_big = []
