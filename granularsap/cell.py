@@ -146,6 +146,36 @@ def _is_atoms(x):
     return hasattr(x, "get_cell") and hasattr(x, "pbc") and hasattr(x, "get_positions")
 
 
+def lammps_pbc(boundary):
+    """(3,) bool periodicity of LAMMPS boundary flags (``"pp pp ff"`` or a sequence
+    of three flags): ``pp`` periodic, two of ``f``, ``s``, ``m`` open.
+
+    Raises
+    ------
+    ValueError
+        Not three flags, or a flag of another kind (named).
+
+    Examples
+    --------
+    >>> lammps_pbc("pp fs pp").tolist()
+    [True, False, True]
+    """
+    flags = boundary.split() if isinstance(boundary, str) else list(boundary)
+    if len(flags) != 3 or not all(isinstance(f, str) and len(f) == 2 for f in flags):
+        raise ValueError(f"boundary must be three LAMMPS boundary flags such as "
+                         f"'pp pp ff', got {boundary!r}")
+    pbc = []
+    for f in flags:
+        if f == "pp":
+            pbc.append(True)
+        elif set(f) <= _LAMMPS_OPEN:
+            pbc.append(False)
+        else:
+            raise ValueError(f"boundary flag {f!r} in {boundary!r} is not a LAMMPS "
+                             "boundary: use 'pp' (periodic) or two of 'f', 's', 'm'")
+    return np.array(pbc)
+
+
 class Cell:
     """An immutable, validated simulation cell with per-axis periodicity.
 
@@ -295,7 +325,7 @@ class Cell:
         t = _real_array(tilts, "tilts")
         if t.shape != (3,):
             raise ValueError(f"tilts must be (xy, xz, yz), got shape {t.shape}")
-        pbc = cls._lammps_boundary(boundary)
+        pbc = lammps_pbc(boundary)
         (xlob, xhib), (ylob, yhib), (zlob, zhib) = b
         xy, xz, yz = t
         xlo = xlob - min(0.0, xy, xz, xy + xz)
@@ -308,23 +338,6 @@ class Cell:
                                  f"{float(lo)!r}; a LAMMPS box needs hi > lo on every axis")
         matrix = np.array([[xhi - xlo, 0.0, 0.0], [xy, yhi - ylo, 0.0], [xz, yz, zhib - zlob]])
         return cls._new(matrix, pbc, np.array([xlo, ylo, zlob]), "bounds")
-
-    @staticmethod
-    def _lammps_boundary(boundary):
-        flags = boundary.split() if isinstance(boundary, str) else list(boundary)
-        if len(flags) != 3 or not all(isinstance(f, str) and len(f) == 2 for f in flags):
-            raise ValueError(f"boundary must be three LAMMPS boundary flags such as "
-                             f"'pp pp ff', got {boundary!r}")
-        pbc = []
-        for f in flags:
-            if f == "pp":
-                pbc.append(True)
-            elif set(f) <= _LAMMPS_OPEN:
-                pbc.append(False)
-            else:
-                raise ValueError(f"boundary flag {f!r} in {boundary!r} is not a LAMMPS "
-                                 "boundary: use 'pp' (periodic) or two of 'f', 's', 'm'")
-        return np.array(pbc)
 
     @classmethod
     def coerce(cls, box, pbc=None, name="box"):

@@ -342,3 +342,48 @@ def test_half_written_contacts_file_is_refused_by_name(lammps_run):
         read_contacts(torn)
     r = subprocess.run([*CLI, "info", str(torn)], capture_output=True, text=True, cwd=d)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "torn.h5.tmp" in r.stderr
+
+
+def _pour_frames(k):
+    """The first ``k`` frames of the bundled pour (2000 spheres, a radius column)."""
+    from pathlib import Path
+
+    text = (Path(__file__).parent.parent / "data" / "pour.dump").read_text()
+    starts = [m for m in range(len(text)) if text.startswith("ITEM: TIMESTEP", m)][:k + 1]
+    return text[:starts[k]] if len(starts) > k else text
+
+
+def test_text_in_the_radius_column_names_file_frame_and_line(tmp_path):
+    # the reader keeps a column it cannot read as numbers as text (an element
+    # column); the radius (or diameter) column must be numbers: a DumpFormatError
+    # naming where, so that the contacts command keeps the frames before it
+    from granularsap.io import DumpFormatError, iter_frames
+
+    text, atom_id = _edit_row(_pour_frames(3), 2, 5, "radius", "abc")
+    bad = tmp_path / "bad.dump"
+    bad.write_text(text)
+    line = text.splitlines().index(next(x for x in text.splitlines()
+                                        if x.startswith(f"{atom_id} ") and "abc" in x)) + 1
+    with pytest.raises(DumpFormatError, match=rf"bad\.dump: frame 2, line {line}: column "
+                                              r"'radius': 'abc' is not a number"):
+        list(iter_frames(bad))
+    r = _contacts(bad, "-o", tmp_path / "bad.h5", "--cutoff", "1.0", cwd=tmp_path)
+    assert r.returncode == 2
+    (msg,) = r.stderr.splitlines()
+    assert "frame 2" in msg and "--frames 0:2" in msg
+
+
+def test_unknown_boundary_flags_in_a_dump_are_named(tmp_path):
+    from granularsap.io import DumpFormatError, iter_frames
+    from granularsap.io.lammps_dump import dump_frame_pbc
+
+    text = _pour_frames(2).replace("ITEM: BOX BOUNDS ff ff ff", "ITEM: BOX BOUNDS pp xx pp", 1)
+    bad = tmp_path / "flags.dump"
+    bad.write_text(text)
+    with pytest.raises(DumpFormatError, match=r"flags\.dump: frame 0, line 5: BOX BOUNDS "
+                                              r"flags: boundary flag 'xx'"):
+        list(iter_frames(bad))
+    good = tmp_path / "good.dump"
+    good.write_text(_pour_frames(2).replace("BOX BOUNDS ff ff ff", "BOX BOUNDS pp fs pp", 1))
+    assert [p.tolist() for p in dump_frame_pbc(good)] == [[True, False, True],
+                                                          [False, False, False]]

@@ -27,6 +27,7 @@ import re
 
 import numpy as np
 
+from ..cell import lammps_pbc
 from ._frame import Frame
 
 __all__ = ["DumpFormatError", "count_dump_frames", "iter_lammps_dump", "open_dump"]
@@ -172,7 +173,7 @@ def _to_float(col, path, frame, first_line, name):
                 float(v)
             except ValueError:
                 raise DumpFormatError(path, frame, first_line + k,
-                                      f"column {name!r}: {v!r} is not a number") from None
+                                      f"column {name!r}: {str(v)!r} is not a number") from None
         raise  # pragma: no cover
 
 
@@ -242,8 +243,11 @@ def dump_frame_pbc(path):
                 if line.startswith(b"ITEM: BOX BOUNDS"):
                     flags = [w for w in line.split()[3:]
                              if w not in (b"xy", b"xz", b"yz", b"abc", b"origin")]
-                    if len(flags) == 3:
-                        pbc = np.array([f == b"pp" for f in flags])
+                    if flags:  # (flags of another kind: the reader names them)
+                        try:
+                            pbc = lammps_pbc([f.decode("ascii", "replace") for f in flags])
+                        except ValueError:
+                            pass
                     break
             out.append(pbc)
     return out
@@ -351,6 +355,7 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
                     general = "abc" in words
                     triclinic = "xy" in words or general
                     flags = [w for w in words if w not in ("xy", "xz", "yz", "abc", "origin")]
+                    flags_line = src.lineno
                     rows = []
                     for _ in range(3):
                         val = src.next()
@@ -370,8 +375,11 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
                     except ValueError as exc:
                         fail(f"BOX BOUNDS do not describe a cell: {exc}")
                     header["cell"], header["origin"] = cell, origin
-                    if len(flags) == 3:
-                        header["pbc"] = np.array([f == "pp" for f in flags])
+                    if flags:
+                        try:
+                            header["pbc"] = lammps_pbc(flags)
+                        except ValueError as exc:
+                            fail(f"BOX BOUNDS flags: {exc}", flags_line)
                     else:  # old dumps without flags: LAMMPS wrote them for periodic boxes
                         header["pbc"] = np.ones(3, bool)
                 elif item.startswith("ATOMS"):
@@ -467,9 +475,9 @@ def _build_frame(path, index, names, rows, header, coordinates, first_row, frame
                               f"{earlier + 1}, line {first_row + earlier}, has it too)")
     radius = None
     if "radius" in columns:
-        radius = columns["radius"].astype(np.float64)
+        radius = _to_float(columns["radius"], path, index, first_row, "radius")
     elif "diameter" in columns:
-        radius = 0.5 * columns["diameter"].astype(np.float64)
+        radius = 0.5 * _to_float(columns["diameter"], path, index, first_row, "diameter")
     mol = columns.get("mol", columns.get("molecule"))
     types = columns.get("type", columns.get("element"))
     frame = Frame(index=index, positions=np.ascontiguousarray(positions), ids=ids, cell=cell,
