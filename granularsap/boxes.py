@@ -903,6 +903,9 @@ class SweepAndPrune:
 #: boxes of the first visiting more, go to the cross-set sweep instead
 _CROSS_MAX_SPAN = 64
 _CROSS_MAX_VISIT = 512
+#: one thread runs the whole query in one pass (``grid_query``) up to this many
+#: boxes of the second set spanning many cells (each tested against every box)
+_FUSED_BIG = 16
 
 
 def _cross_axis(lower, upper, lower_b, upper_b):
@@ -966,28 +969,30 @@ def _cross_grid_plan(lower, upper, lower_b, upper_b, *, kept=False, memo=None):
     dict) then keeps the last plan, returned itself (the same tuple) while the
     second set's span, the rounded sides and the count are the same.
     """
-    lo_a, hi_a, side_a = np.empty(3), np.empty(3), np.empty(3)
-    lo_b, hi_b, side_b = np.empty(3), np.empty(3), np.empty(3)
-    _cross.extent(lower, upper, lo_a, hi_a, side_a)
-    _cross.extent(lower_b, upper_b, lo_b, hi_b, side_b)
-    if (np.maximum(lo_a, lo_b) > np.minimum(hi_a, hi_b)).any():
-        return None
     if kept:
-        lo, hi = lo_b, hi_b
+        # one pass over both sets gives all the plan depends on: the memo's key
+        got = np.empty((3, 3))
+        if not _cross.kept_plan_key(lower, upper, lower_b, upper_b, got):
+            return None
         n_all = 2 * len(lower_b)
+        key = (got.tobytes(), n_all)
+        if memo is not None:
+            last = memo.get("plan")
+            if last is not None and last[0] == key:
+                return last[1]
+        lo, hi, side = got[0], got[1], got[2]
     else:
+        lo_a, hi_a, side_a = np.empty(3), np.empty(3), np.empty(3)
+        lo_b, hi_b, side_b = np.empty(3), np.empty(3), np.empty(3)
+        _cross.extent(lower, upper, lo_a, hi_a, side_a)
+        _cross.extent(lower_b, upper_b, lo_b, hi_b, side_b)
+        if (np.maximum(lo_a, lo_b) > np.minimum(hi_a, hi_b)).any():
+            return None
         lo, hi = np.maximum(lo_a, lo_b), np.minimum(hi_a, hi_b)
+        side = np.maximum(side_a, side_b)
         n_all = len(lower) + len(lower_b)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         ext = hi - lo
-        side = np.maximum(side_a, side_b)
-        if kept:
-            side = np.where(side > 0, np.exp2(np.ceil(np.log2(side))), side)
-            if memo is not None:
-                key = (lo.tobytes(), hi.tobytes(), side.tobytes(), n_all)
-                last = memo.get("plan")
-                if last is not None and last[0] == key:
-                    return last[1]
         dims = np.ones(3)
         for c in range(3):
             if not (ext[c] > 0 and np.isfinite(ext[c])):
@@ -1028,6 +1033,18 @@ def _cross_query(kern, lower, upper, lower_b, upper_b, plan, binned):
     n, m = lower.shape[0], lower_b.shape[0]
     lo, hi, inv, dims = plan
     small_b, big_b, start, members = binned
+    if kern is _cross.serial and len(big_b) <= _FUSED_BIG:
+        # one thread: the whole query in one serial pass, unless a box of A
+        # visits too many cells (then the general passes below)
+        out = np.empty((2 * n + 64, 2), np.int64)
+        k = _cross.grid_query(lower, upper, lower_b, upper_b, lo, hi, inv, dims, start,
+                              members, big_b, _CROSS_MAX_VISIT, out)
+        if k > len(out):
+            out = np.empty((k, 2), np.int64)
+            k = _cross.grid_query(lower, upper, lower_b, upper_b, lo, hi, inv, dims, start,
+                                  members, big_b, _CROSS_MAX_VISIT, out)
+        if k >= 0:
+            return out[:k]
     span_a = np.empty(n, np.int64)
     kern.spans(lower, upper, lo, inv, dims, span_a)
     big_a = span_a > _CROSS_MAX_VISIT

@@ -358,3 +358,32 @@ def test_particles_crowded_along_the_sweep_axis_take_the_general_path():
     assert s_stats["seconds"]["sort"] > 0.0  # the general path's own sort ran
     want, _ = _oracle(pos, None, None, radii, 0.0)
     assert sorted(map(tuple, small[0].tolist())) == sorted(map(tuple, want.tolist()))
+
+
+def test_a_settled_pile_stays_on_the_small_path(monkeypatch):
+    # the bundled pour's last frames: spheres settled in layers on a flat floor,
+    # each layer in one sweep bucket of the widened columns; the bucket check
+    # scales with the columns' area, so the frame stays on the small-frame
+    # kernel (it fell to the general path, three times slower, when the check
+    # was that of range-wide columns) and still equals the general path
+    from pathlib import Path
+
+    import granularsap.search.engine as engine
+    from granularsap.io import iter_frames
+
+    frames = list(iter_frames(Path(__file__).parent.parent / "data" / "pour.dump"))
+    taken = []
+    real = engine.SearchEngine._small
+
+    def small(self, *args):
+        out = real(self, *args)
+        taken.append(out is not None)  # None: the general path takes the frame
+        return out
+
+    monkeypatch.setattr(engine.SearchEngine, "_small", small)
+    for f in frames[-4:]:
+        taken.clear()
+        (small, s_stats), (general, _) = _pair(f.positions, f.radius, f.cell, f.pbc)
+        assert taken and taken[0]
+        assert s_stats["columns"][0] < 8  # widened (range-wide columns: 9 x 9)
+        _same(small, general)

@@ -992,6 +992,39 @@ class TestCrossBoxes:
         np.testing.assert_array_equal(got, brute_cross(la, hi_a, lb, ub))
         assert len(got) > 1000
 
+    @pytest.mark.parametrize("n_big", [3, 20])
+    def test_one_thread_query_in_one_pass(self, n_big, monkeypatch):
+        # one thread runs the query in one serial pass (grid_query): more pairs
+        # than its first guess of room (it runs again with room), a few big
+        # boxes of B tested against every box of A (beyond _FUSED_BIG: the
+        # general passes), a box of A visiting too many cells (the general
+        # passes); the rows are those of two threads and the brute force
+        from granularsap.kernels import cross
+
+        calls = []
+        real = cross.grid_query
+        monkeypatch.setattr(cross, "grid_query", lambda *a: calls.append(1) or real(*a))
+        rng = np.random.default_rng(21)
+        lb = rng.uniform(0, 10, (4000, 3))
+        ub = lb + rng.uniform(0, 0.3, lb.shape)
+        ub[:n_big] = lb[:n_big] + 8.0
+        la = rng.uniform(0, 10, (200, 3))
+        ua = la + 0.2
+        ua[:6] = la[:6] + 3.0  # some 100 boxes of B each: beyond 2 n + 64 rows
+        big_a = ua.copy()
+        big_a[0] = la[0] + 10.0  # visits the whole grid
+        plan = granularsap.boxes._cross_grid_plan(la, ua, lb, ub)
+        spans = np.empty(len(lb), np.int64)
+        cross.spans(lb, ub, plan[0], plan[2], plan[3], spans)
+        assert (spans > granularsap.boxes._CROSS_MAX_SPAN).sum() == n_big
+        for hi_a, fused in ((ua, n_big <= 16), (big_a, False)):
+            want = brute_cross(la, hi_a, lb, ub)
+            assert len(want) > 2 * len(la) + 64
+            calls.clear()
+            np.testing.assert_array_equal(box_overlaps(la, hi_a, lb, ub, n_threads=1), want)
+            assert len(calls) == (2 if fused else 0 if n_big > 16 else 1)
+            np.testing.assert_array_equal(box_overlaps(la, hi_a, lb, ub, n_threads=2), want)
+
     @pytest.mark.parametrize("scale", [1e-300, 1.0, 1e300])
     def test_points_and_extreme_coordinates(self, scale):
         rng = np.random.default_rng(12)

@@ -36,6 +36,7 @@ closed (touching counts) on both paths.
 
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import numba
@@ -183,6 +184,87 @@ def grid_fill(la, ua, lb, ub, rows, lo, hi, inv, dims, start, members, off, out)
     """Write the pairs counted by :func:`grid_count` at the rows' offsets."""
     for k in numba.prange(rows.shape[0]):  # rows that found pairs only
         _grid_row(la, ua, lb, ub, rows[k], lo, hi, inv, dims, start, members, out, off[k], True)
+
+
+@jit
+def grid_query(la, ua, lb, ub, lo, hi, inv, dims, start, members, big_b, max_visit, out):
+    """The grid and a few big boxes of B for every box of A in one serial pass
+    (one thread: the grid's count, fill and the sweep of ``big_b`` without
+    their launches, and no sort after): the pairs ``(a, b)`` in ``out``, sorted
+    by ``a`` then ``b``, while they fit.  Every ``b`` of ``big_b`` is tested
+    against every box of A that meets the region (few of them: boxes of B
+    spanning many cells).  Returns the number of pairs (nothing past
+    ``len(out)`` written: call again with room), or -1 when a box of A visits
+    more than ``max_visit`` cells (the sweep takes it: the general path)."""
+    n = la.shape[0]
+    cap = out.shape[0]
+    lo0, lo1, lo2, hi0, hi1, hi2 = lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
+    w = np.int64(0)
+    for a in range(n):
+        if (ua[a, 0] < lo0 or la[a, 0] > hi0 or ua[a, 1] < lo1 or la[a, 1] > hi1
+                or ua[a, 2] < lo2 or la[a, 2] > hi2):
+            continue
+        visits = np.int64(1)
+        for ax in range(3):
+            visits *= (_cell(ua[a, ax], lo[ax], inv[ax], dims[ax])
+                       - _cell(la[a, ax], lo[ax], inv[ax], dims[ax]) + 1)
+        if visits > max_visit:
+            return np.int64(-1)
+        c = _grid_row(la, ua, lb, ub, a, lo, hi, inv, dims, start, members, out, 0, False)
+        w0 = w
+        if c and w + c <= cap:
+            _grid_row(la, ua, lb, ub, a, lo, hi, inv, dims, start, members, out, w, True)
+        w += c
+        for k in range(big_b.shape[0]):
+            b = big_b[k]
+            if (la[a, 0] <= ub[b, 0] and lb[b, 0] <= ua[a, 0] and la[a, 1] <= ub[b, 1]
+                    and lb[b, 1] <= ua[a, 1] and la[a, 2] <= ub[b, 2]
+                    and lb[b, 2] <= ua[a, 2]):
+                if w < cap:
+                    out[w, 0] = a
+                    out[w, 1] = b
+                w += 1
+        if w <= cap:  # this box's partners in order (the grid lists them by cell)
+            for i in range(w0 + 1, w):
+                v = out[i, 1]
+                j = i - 1
+                while j >= w0 and out[j, 1] > v:
+                    out[j + 1, 1] = out[j, 1]
+                    j -= 1
+                out[j + 1, 1] = v
+    return w
+
+
+@jit
+def kept_plan_key(la, ua, lb, ub, out):
+    """What the grid of a kept second set depends on, in one pass over both sets:
+    ``out[0]``, ``out[1]`` the lower and upper corners of B's span, ``out[2]``
+    the cell sides (the larger of the two sets' mean box sides per axis, up to
+    a power of two).  Returns False when the two spans do not meet (no pair)."""
+    for ax in range(3):
+        lo_a = np.inf
+        hi_a = -np.inf
+        side_a = 0.0
+        for i in range(la.shape[0]):
+            lo_a = min(lo_a, la[i, ax])
+            hi_a = max(hi_a, ua[i, ax])
+            side_a += ua[i, ax] - la[i, ax]
+        lo_b = np.inf
+        hi_b = -np.inf
+        side_b = 0.0
+        for i in range(lb.shape[0]):
+            lo_b = min(lo_b, lb[i, ax])
+            hi_b = max(hi_b, ub[i, ax])
+            side_b += ub[i, ax] - lb[i, ax]
+        if max(lo_a, lo_b) > min(hi_a, hi_b):
+            return False
+        side = max(side_a / max(la.shape[0], 1), side_b / max(lb.shape[0], 1))
+        if side > 0.0 and side < np.inf:
+            side = 2.0 ** math.ceil(math.log2(side))
+        out[0, ax] = lo_b
+        out[1, ax] = hi_b
+        out[2, ax] = side
+    return True
 
 
 # ----------------------------------------------------------------- the sweep

@@ -1451,6 +1451,7 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
             nb0 = max(1, nb0 // 2)
         else:
             nb1 = max(1, nb1 // 2)
+    crowded = 32.0  # (a bucket of a column one range wide; wider ones hold more)
     if not levels and n <= WIDE_MAX:  # plan.wide_columns, the same arithmetic
         per_window = n / (nb0 * nb1)
         if span2 > 0:
@@ -1460,8 +1461,11 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
             f = MAX_WIDEN
             if per_window > 0.0:
                 f = min(MAX_WIDEN, math.sqrt(WINDOW_TARGET / per_window))
-            nb0 = max(1, int(math.floor(nb0 / f)))
-            nb1 = max(1, int(math.floor(nb1 / f)))
+            wide0 = max(1, int(math.floor(nb0 / f)))
+            wide1 = max(1, int(math.floor(nb1 / f)))
+            crowded *= (nb0 * nb1) / (wide0 * wide1)
+            nb0 = wide0
+            nb1 = wide1
     inv0 = nb0 / span0 if span0 > 0 else 0.0
     inv1 = nb1 / span1 if span1 > 0 else 0.0
     f0 = span0 / nb0
@@ -1597,13 +1601,14 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
         _small_zindex(ncol, chunk_start, tz, zidx, nz, zlo, inv_bz)
         # crowded buckets (positions clustered along an open sweep axis) would
         # make the windows long: the pointer walk of _sweep_chunk then
-        # (the general path)
+        # (the general path).  Widened columns hold as many more per bucket
+        # as they are larger (a settled pile's layers, one to a bucket)
         fullest = 0
         for c in range(ncol):
             row = c * (nz + 1)
             for b in range(nz):
                 fullest = max(fullest, zidx[row + b + 1] - zidx[row + b])
-        use_z = fullest <= 32
+        use_z = fullest <= crowded
     if not use_z:
         # the general path's pointer walk (search._build), whose kernels compile
         # only for the frames that need them, not in every first small frame
