@@ -667,6 +667,16 @@ class WallSearch:
         sphere_key = np.arange(n, dtype=np.int64) if ids is None else _as_ids(ids, n)
         verts = self._vertices_for(vertices)
         threads = self.n_threads
+        faces = sum(len(w.faces) for w in self.walls if isinstance(w, TriangleMesh))
+        if threads is None and n + faces < _PARALLEL_MIN:
+            threads = 1
+        # one thread setting for the whole call (the meshes, their broad phase and
+        # the identity), set and restored once
+        with num_threads(threads) as used:
+            return self._update(x, n, r, cell, ids, sphere_key, verts, used)
+
+    def _update(self, x, n, r, cell, ids, sphere_key, verts, threads):
+        """The call on validated inputs, under its thread count ``threads``."""
         h = r + self.skin
         if cell is not None:
             xw = cell.wrap(x)
