@@ -312,6 +312,13 @@ class TestAseAndMDAnalysisFiles:
                 if name.endswith("extxyz"):  # .traj keeps standard arrays only
                     np.testing.assert_allclose(fr.radius, at.arrays["radius"])
             assert [f.index for f in iter_frames(path, frames=slice(1, 3))] == [1, 2]
+            assert [f.index for f in iter_frames(path, frames=slice(0, None, 2))] == [0, 2]
+            # a frame's index is its place in the file: slices from the end, or
+            # backwards, would need the file's frames counted first
+            for sel in (slice(-2, None), slice(None, None, -1), slice(0, -1)):
+                with pytest.raises(ValueError, match="frames must be a slice with "
+                                                     "non-negative start/stop"):
+                    list(iter_frames(path, frames=sel))
 
     def test_ase_slab_with_zero_vector(self, tmp_path):
         import ase

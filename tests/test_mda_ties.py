@@ -46,3 +46,25 @@ def test_ties_like_mdanalysis(method, box, seed):
     got = gmda.capped_distance(pos, conf, cutoff, box=box, method=method,
                                return_distances=False)
     assert _set(got, False) == _set(want, False)
+
+
+def test_pkdtree_distances_stay_within_max_cutoff():
+    # MDAnalysis's pkdtree path decides inside scipy, then computes distances with
+    # calc_bonds; a pair at a float32 tie (a lattice across a triclinic box's
+    # corner) or at calc_bonds' image of a skewed cell came back with a distance
+    # beyond max_cutoff: it is left out, as MDAnalysis's own answer leaves it
+    g = np.stack(np.meshgrid(*[np.arange(6)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    x = g.astype(np.float32) + np.float32(97.0)
+    box = np.array([100, 100, 100, 70, 80, 100], np.float32)
+    want_p, want_d = self_capped_distance(x, 2.0, box=box)  # pkdtree (method=None)
+    got_p, got_d = gmda.self_capped_distance(x, 2.0, box=box)
+    assert got_d.max() <= 2.0
+    order = np.lexsort((got_p[:, 1], got_p[:, 0]))
+    w = np.lexsort((want_p[:, 1], want_p[:, 0]))
+    np.testing.assert_array_equal(got_p[order], want_p[w])
+    np.testing.assert_array_equal(got_d[order], want_d[w])
+    skewed = np.array([15, 9, 7, 50, 115, 80.0], np.float32)
+    ref = np.array([[4.3618503, 4.0551124, 7.374729]], np.float32)
+    conf = np.array([[3.623267, 5.077148, 0.7140875]], np.float32)
+    assert len(capped_distance(ref, conf, 6.0, box=skewed, method="pkdtree")[0]) == 0
+    assert len(gmda.capped_distance(ref, conf, 6.0, box=skewed, method="pkdtree")[0]) == 0

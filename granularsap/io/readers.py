@@ -145,7 +145,9 @@ def iter_frames(path, format=None, *, frames=None, topology=None, coordinates=No
         MDAnalysis; the rest to ASE).
     frames : slice, optional
         Which frames to read (default all).  Frames outside are skipped without
-        being parsed where the reader allows.
+        being parsed where the reader allows.  LAMMPS dumps and files ASE reads
+        take non-negative start and stop and a positive step (each frame's
+        ``index`` is its place in the file); MDAnalysis's readers any slice.
     topology : str, optional
         Topology for MDAnalysis (e.g. a PSF, PDB or LAMMPS data file for a DCD).
     coordinates : {"x", "xu", "xs", "xsu"}, optional
@@ -295,6 +297,11 @@ def _iter_ase(path, sub, frames, kwargs):
 
     start = frames.start or 0
     step = frames.step or 1
+    if start < 0 or (frames.stop is not None and frames.stop < 0) or step <= 0:
+        # (ASE would read them, but each frame's index in the file is not known
+        # without counting the file's frames first)
+        raise ValueError(f"frames must be a slice with non-negative start/stop and positive "
+                         f"step for a file ASE reads, got {frames}")
     index = slice(frames.start, frames.stop, frames.step)
     given = sub is not None
     if sub is None:
@@ -330,7 +337,7 @@ def _iter_ase(path, sub, frames, kwargs):
             zero = np.flatnonzero(pbc & ~(lengths > 0))
             which = (f"cell vector {zero[0]}, which is" if len(zero) == 1 else
                      f"cell vectors {', '.join(map(str, zero))}, which are")
-            raise TrajectoryError(f"{path}: frame {start + k * step if start >= 0 else k}: "
+            raise TrajectoryError(f"{path}: frame {start + k * step}: "
                                   f"periodic along {which} zero; give the cell, or pbc=False "
                                   "where there is none")
         if atoms.cell.rank == 3 or pbc.any():
@@ -352,7 +359,7 @@ def _iter_ase(path, sub, frames, kwargs):
         info = atoms.info
         step_val = info.get("timestep", info.get("step"))
         time_val = info.get("time")
-        frame = Frame(index=start + k * step if start >= 0 else k,
+        frame = Frame(index=start + k * step,
                       positions=np.array(atoms.positions, dtype=np.float64), ids=ids, cell=cell,
                       pbc=pbc, step=None if step_val is None else int(step_val),
                       time=None if time_val is None else float(time_val),

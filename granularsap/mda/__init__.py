@@ -173,11 +173,13 @@ def _decide_like_mdanalysis(ref, conf, a, b, dist, box32, max_cutoff, method):
     if chosen == "pkdtree":
         # decided inside scipy: the float64 minimum image decides; MDAnalysis then
         # computes the distances (and applies min_cutoff to them) with calc_bonds,
-        # whose arithmetic is bruteforce's
+        # whose arithmetic is bruteforce's.  A pair whose calc_bonds distance is
+        # beyond max_cutoff (a tie in float32, or calc_bonds' image in a skewed
+        # cell) is not returned: every distance stays within the cutoffs
         keep = dist <= max_cutoff
         a, b = a[keep], b[keep]
-        return a, b, arith.decide(ref32, conf32, a, b, box32, max_cutoff,
-                                       "bruteforce")[0]
+        d, keep = arith.decide(ref32, conf32, a, b, box32, max_cutoff, "bruteforce")
+        return a[keep], b[keep], d[keep]
     decided = arith.decide(ref32, conf32, a, b, box32, max_cutoff, chosen)
     d, keep = decided
     return a[keep], b[keep], d[keep]
