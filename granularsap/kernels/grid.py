@@ -1293,7 +1293,18 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                                     word &= ~(np.uint64(1) << t)
                         else:
                             pt = p - base
-                            if tri is None:
+                            if tri is None and not levels:
+                                # (few hits among the candidates: a branch taken
+                                # rarely costs less than the mask of every one)
+                                for t in range(top - base):
+                                    u = ub + np.uint64(t)
+                                    dx = (xs[u] - xp) + ax
+                                    dy = (ys[u] - yp) + by
+                                    dz = (zs[u] - zp) + cz
+                                    thr = rp + rs[u] + skin_sup
+                                    if dx * dx + dy * dy + dz * dz <= thr * thr * loose:
+                                        word |= np.uint64(1) << np.uint64(t)
+                            elif tri is None:
                                 for t in range(top - base):
                                     u = ub + np.uint64(t)
                                     dx = (xs[u] - xp) + ax
@@ -1301,8 +1312,7 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                                     dz = (zs[u] - zp) + cz
                                     thr = rp + rs[u] + skin_sup
                                     ok = dx * dx + dy * dy + dz * dz <= thr * thr * loose
-                                    if levels:
-                                        ok = ok & ((big[u] == 0) | (second & (pt < t)))
+                                    ok = ok & ((big[u] == 0) | (second & (pt < t)))
                                     word |= np.uint64(ok) << np.uint64(t)
                             else:
                                 for t in range(top - base):
