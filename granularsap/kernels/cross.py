@@ -68,21 +68,25 @@ def _cell_range(lower, upper, b, lo, inv, dims):
             _cell(lower[b, 2], lo[2], inv[2], dims[2]), _cell(upper[b, 2], lo[2], inv[2], dims[2]))
 
 
+@ijit
+def _axis_extent(lower, upper, ax):
+    """Lowest lower corner, highest upper corner and mean side of the boxes along
+    axis ``ax``."""
+    lo = np.inf
+    hi = -np.inf
+    side = 0.0
+    for b in range(lower.shape[0]):
+        lo = min(lo, lower[b, ax])
+        hi = max(hi, upper[b, ax])
+        side += upper[b, ax] - lower[b, ax]
+    return lo, hi, side / max(lower.shape[0], 1)
+
+
 @jit
 def extent(lower, upper, lo, hi, side):
-    """Lowest lower corner, highest upper corner and mean side per axis (one pass)."""
-    n = lower.shape[0]
+    """Lowest lower corner, highest upper corner and mean side per axis."""
     for ax in range(3):
-        lo[ax] = np.inf
-        hi[ax] = -np.inf
-        side[ax] = 0.0
-    for b in range(n):
-        for ax in range(3):
-            lo[ax] = min(lo[ax], lower[b, ax])
-            hi[ax] = max(hi[ax], upper[b, ax])
-            side[ax] += upper[b, ax] - lower[b, ax]
-    for ax in range(3):
-        side[ax] /= max(n, 1)
+        lo[ax], hi[ax], side[ax] = _axis_extent(lower, upper, ax)
 
 
 @pjit
@@ -237,28 +241,16 @@ def grid_query(la, ua, lb, ub, lo, hi, inv, dims, start, members, big_b, max_vis
 
 @jit
 def kept_plan_key(la, ua, lb, ub, out):
-    """What the grid of a kept second set depends on, in one pass over both sets:
+    """What the grid of a kept second set depends on, in one pass over each set:
     ``out[0]``, ``out[1]`` the lower and upper corners of B's span, ``out[2]``
     the cell sides (the larger of the two sets' mean box sides per axis, up to
     a power of two).  Returns False when the two spans do not meet (no pair)."""
     for ax in range(3):
-        lo_a = np.inf
-        hi_a = -np.inf
-        side_a = 0.0
-        for i in range(la.shape[0]):
-            lo_a = min(lo_a, la[i, ax])
-            hi_a = max(hi_a, ua[i, ax])
-            side_a += ua[i, ax] - la[i, ax]
-        lo_b = np.inf
-        hi_b = -np.inf
-        side_b = 0.0
-        for i in range(lb.shape[0]):
-            lo_b = min(lo_b, lb[i, ax])
-            hi_b = max(hi_b, ub[i, ax])
-            side_b += ub[i, ax] - lb[i, ax]
+        lo_a, hi_a, side_a = _axis_extent(la, ua, ax)
+        lo_b, hi_b, side_b = _axis_extent(lb, ub, ax)
         if max(lo_a, lo_b) > min(hi_a, hi_b):
             return False
-        side = max(side_a / max(la.shape[0], 1), side_b / max(lb.shape[0], 1))
+        side = max(side_a, side_b)
         if side > 0.0 and side < np.inf:
             side = 2.0 ** math.ceil(math.log2(side))
         out[0, ax] = lo_b
