@@ -840,62 +840,59 @@ class WallSearch:
         itri = np.ascontiguousarray(itri)
         tlo = np.empty((len(itri), 3))
         thi = np.empty((len(itri), 3))
-        with num_threads(threads) as used:
-            kern = _tri if used > 1 else _tri.serial
-            top = float(kern.triangle_boxes(itri, tlo, thi))
+        kern = _tri if threads > 1 else _tri.serial
+        top = float(kern.triangle_boxes(itri, tlo, thi))
         geo = (rows, shifts, itri, tlo, thi, top)
         self._geo[w] = (verts, key, geo)
         return geo
 
     def _mesh(self, w, mesh, verts, xw, h, cell, delta, threads, bounds):
         """Staging rows of one mesh's contacts (appended; ``bounds`` gets the
-        part's end); returns the number of candidates tested."""
+        part's end); returns the number of candidates tested.  ``threads``: the
+        thread count ``update`` put in force."""
         n = len(xw)
         if cell is not None:
             corners, edges, face_edges = mesh._periodic_adjacency(verts, cell)
         else:
             corners, edges, face_edges = mesh._corners, mesh._edges, mesh._face_edges
         hmax = float(h.max()) if n else 0.0
-        if threads is None and n + len(mesh.faces) < _PARALLEL_MIN:
-            threads = 1
         rows, shifts, itri, tlo, thi, top = self._geometry(w, mesh, verts, cell, hmax, threads)
         base = bounds[-1]
         if n == 0 or len(itri) == 0:
             bounds.append(base)
             return 0
-        with num_threads(threads) as used:
-            kern = _tri if used > 1 else _tri.serial
-            lo = self._scratch("lower", (n, 3))
-            hi = self._scratch("upper", (n, 3))
-            lo, hi = lo[:n], hi[:n]
-            kern.sphere_boxes(xw, h, top, _GUARD, lo, hi)
-            engine = self._engines.get(w)
-            if engine is None:
-                engine = self._engines[w] = SweepAndPrune()
-            engine.n_threads = used
-            # the engine keeps the triangles' grid while they do not move; its
-            # pairs come sorted by sphere
-            cand = engine.update(lo, hi, tlo, thi)
-            k = len(cand)
-            if k == 0:
-                bounds.append(base)
-                return 0
-            dist = self._scratch("dist", (k,))
-            point = self._scratch("point", (k, 3))
-            ints = [self._scratch(name, (k + 1,), np.int64)
-                    for name in ("region", "elem", "kind", "fid", "f0", "f1", "gstart",
-                                 "offsets", "order")]
-            slots = _tri.SLOTS * k
-            table = (self._scratch("hkey", (slots,), np.int64),
-                     self._scratch("hdist", (slots,)),
-                     self._scratch("hkind", (slots,), np.int64),
-                     self._scratch("hbest", (slots,), np.int64))
-            groups, total = kern.mesh_select(cand, xw, h, _TIE, itri, rows, shifts, corners,
-                                             face_edges, edges, dist, point, *ints, *table)
-            if base + total > len(self._st_i):
-                self._grow_stage(base + total, base)
-            _, elem, kind, _, f0, f1, gstart, offsets, order = ints
-            kern.mesh_fill(cand, xw, itri, dist, point, elem, kind, f0, f1, gstart, offsets,
-                           order, groups, w, delta, self._st_i, self._st_f, base)
+        kern = _tri if threads > 1 else _tri.serial
+        lo = self._scratch("lower", (n, 3))
+        hi = self._scratch("upper", (n, 3))
+        lo, hi = lo[:n], hi[:n]
+        kern.sphere_boxes(xw, h, top, _GUARD, lo, hi)
+        engine = self._engines.get(w)
+        if engine is None:
+            engine = self._engines[w] = SweepAndPrune()
+        engine.n_threads = threads
+        # the engine keeps the triangles' grid while they do not move; its
+        # pairs come sorted by sphere
+        cand = engine.update(lo, hi, tlo, thi)
+        k = len(cand)
+        if k == 0:
+            bounds.append(base)
+            return 0
+        dist = self._scratch("dist", (k,))
+        point = self._scratch("point", (k, 3))
+        ints = [self._scratch(name, (k + 1,), np.int64)
+                for name in ("region", "elem", "kind", "fid", "f0", "f1", "gstart",
+                             "offsets", "order")]
+        slots = _tri.SLOTS * k
+        table = (self._scratch("hkey", (slots,), np.int64),
+                 self._scratch("hdist", (slots,)),
+                 self._scratch("hkind", (slots,), np.int64),
+                 self._scratch("hbest", (slots,), np.int64))
+        groups, total = kern.mesh_select(cand, xw, h, _TIE, itri, rows, shifts, corners,
+                                         face_edges, edges, dist, point, *ints, *table)
+        if base + total > len(self._st_i):
+            self._grow_stage(base + total, base)
+        _, elem, kind, _, f0, f1, gstart, offsets, order = ints
+        kern.mesh_fill(cand, xw, itri, dist, point, elem, kind, f0, f1, gstart, offsets,
+                       order, groups, w, delta, self._st_i, self._st_f, base)
         bounds.append(base + total)
         return k

@@ -89,15 +89,21 @@ def extent(lower, upper, lo, hi, side):
         lo[ax], hi[ax], side[ax] = _axis_extent(lower, upper, ax)
 
 
+@ijit
+def _span(lower, upper, b, lo, inv, dims):
+    """Cells of the grid box ``b`` overlaps."""
+    c = np.int64(1)
+    for ax in range(3):
+        c *= (_cell(upper[b, ax], lo[ax], inv[ax], dims[ax])
+              - _cell(lower[b, ax], lo[ax], inv[ax], dims[ax]) + 1)
+    return c
+
+
 @pjit
 def spans(lower, upper, lo, inv, dims, out):
     """Cells of the grid each box overlaps (as :func:`bin_boxes` bins them)."""
     for b in numba.prange(lower.shape[0]):
-        c = np.int64(1)
-        for ax in range(3):
-            c *= (_cell(upper[b, ax], lo[ax], inv[ax], dims[ax])
-                  - _cell(lower[b, ax], lo[ax], inv[ax], dims[ax]) + 1)
-        out[b] = c
+        out[b] = _span(lower, upper, b, lo, inv, dims)
 
 
 @jit
@@ -208,11 +214,7 @@ def grid_query(la, ua, lb, ub, lo, hi, inv, dims, start, members, big_b, max_vis
         if (ua[a, 0] < lo0 or la[a, 0] > hi0 or ua[a, 1] < lo1 or la[a, 1] > hi1
                 or ua[a, 2] < lo2 or la[a, 2] > hi2):
             continue
-        visits = np.int64(1)
-        for ax in range(3):
-            visits *= (_cell(ua[a, ax], lo[ax], inv[ax], dims[ax])
-                       - _cell(la[a, ax], lo[ax], inv[ax], dims[ax]) + 1)
-        if visits > max_visit:
+        if _span(la, ua, a, lo, inv, dims) > max_visit:
             return np.int64(-1)
         c = _grid_row(la, ua, lb, ub, a, lo, hi, inv, dims, start, members, out, 0, False)
         w0 = w

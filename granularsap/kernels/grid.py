@@ -1389,6 +1389,26 @@ WIDE_MAX = 4095
 
 
 @jit
+def wide_columns(nb0, nb1, n, delta2, span2):
+    """Columns ``(nb0, nb1)`` widened for a sparse frame (``search.plan.wide_columns``
+    says why): the expected candidates of a window, ``n / (nb0 nb1)`` particles per
+    column times the window's share ``delta2 / span2`` of the sweep axis, below
+    ``WINDOW_TARGET`` widen the columns by ``sqrt(WINDOW_TARGET / that)``, at most
+    ``MAX_WIDEN`` times.  One compiled function for the small-frame kernel and the
+    general path's plan, so that both take the same columns bit for bit."""
+    per_window = n / (nb0 * nb1)
+    if span2 > 0:
+        along = delta2 / span2
+        per_window *= along if along < 1.0 else 1.0
+    if not per_window < WINDOW_TARGET:
+        return nb0, nb1
+    f = MAX_WIDEN
+    if per_window > 0.0:
+        f = min(MAX_WIDEN, math.sqrt(WINDOW_TARGET / per_window))
+    return max(1, int(math.floor(nb0 / f))), max(1, int(math.floor(nb1 / f)))
+
+
+@jit
 def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x2,
                 guard_rel, r_small, fresh, prev, t, k, w, col, perm, start, cursor, tz, xs,
                 ys, zs, rs, ls, big, stencil, kp, zidx, ts0, ts1):
@@ -1462,20 +1482,11 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
         else:
             nb1 = max(1, nb1 // 2)
     crowded = 32.0  # (a bucket of a column one range wide; wider ones hold more)
-    if not levels and n <= WIDE_MAX:  # plan.wide_columns, the same arithmetic
-        per_window = n / (nb0 * nb1)
-        if span2 > 0:
-            along = (bin_range / widths[2]) / span2
-            per_window *= along if along < 1.0 else 1.0
-        if per_window < WINDOW_TARGET:
-            f = MAX_WIDEN
-            if per_window > 0.0:
-                f = min(MAX_WIDEN, math.sqrt(WINDOW_TARGET / per_window))
-            wide0 = max(1, int(math.floor(nb0 / f)))
-            wide1 = max(1, int(math.floor(nb1 / f)))
-            crowded *= (nb0 * nb1) / (wide0 * wide1)
-            nb0 = wide0
-            nb1 = wide1
+    if not levels and n <= WIDE_MAX:  # as the general path's plan_columns
+        wide0, wide1 = wide_columns(nb0, nb1, n, bin_range / widths[2], span2)
+        crowded *= (nb0 * nb1) / (wide0 * wide1)
+        nb0 = wide0
+        nb1 = wide1
     inv0 = nb0 / span0 if span0 > 0 else 0.0
     inv1 = nb1 / span1 if span1 > 0 else 0.0
     f0 = span0 / nb0

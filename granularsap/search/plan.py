@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..kernels.grid import MAX_WIDEN, WINDOW_TARGET
+from ..kernels import grid
 
 #: particles per chunk of parallel work (chunk boundaries never depend on threads)
 CHUNK = 2048
@@ -89,19 +89,19 @@ def wide_columns(nb, span, delta, n):
     ``plan_columns``): the per-particle windows of ``grid._small_sweep`` skip
     the stencil columns out of a particle's own reach, the column-pair
     windows of ``grid._sweep_chunk`` do not (on wider columns they test
-    several times the candidates).  The same arithmetic as
-    ``grid._small_plan``'s, so that a small frame gets the general path's
-    plan, rows in the same order.
+    several times the candidates).  The arithmetic is ``grid.wide_columns``,
+    which ``grid._small_plan`` calls too, so that a small frame gets the
+    general path's plan, rows in the same order.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> wide_columns([6, 6], np.ones(3), np.full(3, 0.17), 1000)
+    [2, 2]
     """
-    per_window = n / (nb[0] * nb[1])
-    if span[2] > 0:
-        along = float(delta[2]) / float(span[2])
-        per_window *= along if along < 1.0 else 1.0
-    if not per_window < WINDOW_TARGET:
-        return nb
-    f = MAX_WIDEN if per_window <= 0.0 else min(MAX_WIDEN,
-                                                 math.sqrt(WINDOW_TARGET / per_window))
-    return [max(1, int(math.floor(nb[c] / f))) for c in range(2)]
+    nb0, nb1 = grid.wide_columns(int(nb[0]), int(nb[1]), int(n), float(delta[2]),
+                                 float(span[2]))
+    return [nb0, nb1]
 
 
 def plan_columns(lo, span, pbc, widths, rmax, r_small, reach, guard, far, n, wide=False):
