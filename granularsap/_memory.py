@@ -253,9 +253,9 @@ def column_pair_bound(start, nb0, nb1, layers0, layers1, pbc0, pbc1):
     l0 = layers0 if not pbc0 else min(layers0, nb0)
     l1 = layers1 if not pbc1 else min(layers1, nb1)
     rows = np.empty((nb0, nb1))
-    _window_sums(occ, 0, l0, pbc0, rows)
+    _window_sums(occ, np.int64(0), l0, pbc0, rows)
     near = np.empty((nb0, nb1))
-    _window_sums(rows, 1, l1, pbc1, near)
+    _window_sums(rows, np.int64(1), l1, pbc1, near)
     total = 0.0
     for a in range(nb0):
         for b in range(nb1):
@@ -317,7 +317,7 @@ def pair_lower_bound(t, cell, pbc, reach, *, all_images=False, cells=None, width
     """
     t = np.ascontiguousarray(t, dtype=np.float64)
     cell = np.asarray(cell, dtype=np.float64)
-    pbc = np.asarray(pbc, dtype=bool)
+    pbc = np.array(pbc, dtype=bool)  # writable: the one signature of _cell_counts
     n = len(t)
     if n < 2 or not reach > 0:
         return 0, (1, 1, 1)

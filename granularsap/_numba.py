@@ -130,8 +130,11 @@ def jit(func):
 
 
 def ijit(func):
-    """Decorator for small serial helpers of hot loops, inlined into their
-    callers at numba's IR level (no call overhead, no argument packing)."""
+    """Decorator for small serial helpers, inlined into their callers at numba's
+    IR level: no call overhead or argument packing in hot loops, and no
+    compilation of their own for the one-off helpers of a kernel (each compiled
+    function costs a pipeline and an LLVM module of its own on a cold cache).
+    Calls with more arguments than CPython passes one by one cannot be inlined."""
     return numba.njit(inline="always", **_OPTIONS)(func)
 
 

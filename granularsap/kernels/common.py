@@ -82,7 +82,7 @@ def lower_bound(arr, lo, hi, v):
     return lo
 
 
-@jit
+@ijit
 def stable_argsort(vals):
     """Indices that sort the finite ``vals`` ascending, equal values in index order
     (``np.argsort(vals, kind="stable")`` for finite values): a bottom-up merge

@@ -152,7 +152,7 @@ _U = 2.0 ** -53
 _ETA = 5e-324
 
 
-@jit
+@ijit
 def band(wmax, kmax, cmax, smax, tmax, x2):
     """(lo2, hi2, dtol, exact) of a frame: its largest wrapped coordinate
     ``wmax``, largest wrap shift ``kmax``, largest periodic cell entry ``cmax``,
@@ -175,7 +175,7 @@ def band(wmax, kmax, cmax, smax, tmax, x2):
     return lo2, hi2, dtol, False
 
 
-@jit
+@ijit
 def frame_band(wmax, kmax, cell, pbc, widths, reach, tmax, x2):
     """``band`` of a frame from its cell: ``reach`` bounds the separation of every
     candidate a path tests, up to a factor 2 (the interaction range plus the
@@ -1349,7 +1349,7 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
     return cnt, tested, w
 
 
-@jit
+@ijit
 def _small_zindex(ncol, start, tz, zidx, nz, zlo, inv_bz):
     """``zidx`` of ``_small_sweep``: for every column its first particle in each
     sweep bucket or later, then the column's end."""
@@ -1388,7 +1388,7 @@ MAX_WIDEN = 3.0
 WIDE_MAX = 4095
 
 
-@jit
+@ijit
 def wide_columns(nb0, nb1, n, delta2, span2):
     """Columns ``(nb0, nb1)`` widened for a sparse frame (``search.plan.wide_columns``
     says why): the expected candidates of a window, ``n / (nb0 nb1)`` particles per
@@ -1661,9 +1661,11 @@ def small_frame(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
     outputs were written).  The wrap shifts in column order go to ``kp``; the
     pair test is the agreed arithmetic on ``x`` (the frame's ``band``)."""
     need, exact = fill
+    zero = np.int64(0)  # (typed values, not literals: one compiled _records_fill for
+    no_self = np.bool_(False)  # this kernel and direct_fill)
     if need >= 0:
-        total = _records_fill(0, need, 0, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
-                              use_label, cell, diag, False, skin, strict, uniform, x2, perm,
+        total = _records_fill(zero, need, zero, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
+                              use_label, cell, diag, no_self, skin, strict, uniform, x2, perm,
                               kp, x, exact, want_d, want_vec, want_shift, out_p, out_d, out_v,
                               out_s)
         return -1, total, 0, need, 0, 0, exact, True
@@ -1689,8 +1691,8 @@ def small_frame(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, s
             and (total <= out_v.shape[0] or not want_vec)
             and (total <= out_s.shape[0] or not want_shift))
     if done:
-        _records_fill(0, need, 0, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls, use_label,
-                      cell, diag, False, skin, strict, uniform, x2, perm, kp, x, exact,
+        _records_fill(zero, need, zero, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
+                      use_label, cell, diag, no_self, skin, strict, uniform, x2, perm, kp, x, exact,
                       want_d, want_vec, want_shift, out_p, out_d, out_v, out_s)
     return -1, total, tested, need, nb0, nb1, exact, done
 

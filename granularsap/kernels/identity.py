@@ -252,8 +252,8 @@ def _in_step_chunk(c, pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_
                     u = v
                     break
         if u < 0 and misses >= _LOST:
-            u = _find_near(prev_pairs, prev_shifts, with_shift, q, _RESYNC, lo, hi, s0, s1,
-                           s2)
+            u = _find_near(prev_pairs, prev_shifts, with_shift, q, np.int64(_RESYNC), lo, hi,
+                           s0, s1, s2)
             misses = 0
         if u >= 0:
             prev_rows[r] = u
@@ -268,9 +268,10 @@ def _in_step_chunk(c, pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_
 
 
 # Each variant's chunk is its own compiled function (``mapped`` and
-# ``with_shift`` constants there, so that their branches compile away) which the
-# parallel kernel and its serial twin both call: the body compiles once per
-# variant, not once inside each kernel.
+# ``with_shift`` constants there, so that their branches compile away: as runtime
+# flags pass 1 took 37 % longer on an md-liquid step) which the parallel kernel
+# and its serial twin both call with an int64 ``c`` (a prange index is unsigned:
+# a second signature): the body compiles once per variant.
 
 @jit
 def _chunk(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds, reach,
@@ -312,7 +313,7 @@ def match_in_step(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, boun
     ``c`` (rows ``bounds[c]:bounds[c + 1]``) places its cursor by finding one of
     its first pairs within ``reach`` rows of its share of the previous list."""
     for c in numba.prange(bounds.shape[0] - 1):
-        _chunk(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
+        _chunk(np.int64(c), pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
                reach, prev_rows, matched, todo, todo_counts)
 
 
@@ -321,7 +322,7 @@ def match_in_step_ids(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, 
                       reach, prev_rows, matched, todo, todo_counts):
     """``match_in_step`` with particles mapped to previous rows by ``m``."""
     for c in numba.prange(bounds.shape[0] - 1):
-        _chunk_ids(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
+        _chunk_ids(np.int64(c), pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
                    reach, prev_rows, matched, todo, todo_counts)
 
 
@@ -330,7 +331,7 @@ def match_in_step_shifts(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shift
                          reach, prev_rows, matched, todo, todo_counts):
     """``match_in_step`` by row and lattice shift (corrected by ``jumps``)."""
     for c in numba.prange(bounds.shape[0] - 1):
-        _chunk_shifts(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
+        _chunk_shifts(np.int64(c), pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
                       reach, prev_rows, matched, todo, todo_counts)
 
 
@@ -339,8 +340,8 @@ def match_in_step_ids_shifts(pairs, m, n_prev, shifts, jumps, prev_pairs, prev_s
                              reach, prev_rows, matched, todo, todo_counts):
     """``match_in_step`` by ``m`` and lattice shift."""
     for c in numba.prange(bounds.shape[0] - 1):
-        _chunk_ids_shifts(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds,
-                          reach, prev_rows, matched, todo, todo_counts)
+        _chunk_ids_shifts(np.int64(c), pairs, m, n_prev, shifts, jumps, prev_pairs,
+                          prev_shifts, bounds, reach, prev_rows, matched, todo, todo_counts)
 
 
 @ijit

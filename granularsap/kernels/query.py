@@ -491,7 +491,7 @@ def count(g, ref, ts, chunk, counts, tested, rec, wstart, wcap, wneed, todo):
         if not todo[c]:
             continue
         tc = 0
-        w = 0
+        w = np.int64(0)
         for a in range(c * chunk, min(n, (c + 1) * chunk)):
             i = ref.order[a]
             k, t, w = _rows_of(i, g, ref, ts, rec, wstart[c], wcap[c], w)

@@ -184,7 +184,7 @@ def _radix_plain(ka, ia, kb, ib, lo, hi, count):
         _insertion_sort(ka, ia, lo, hi)
         return True
     kmin, kmax = _min_max(ka, lo, hi)
-    return _lsd_passes(ka, ia, kb, ib, lo, hi, count, kmin, 0, _nbits(kmax - kmin))
+    return _lsd_passes(ka, ia, kb, ib, lo, hi, count, kmin, np.int64(0), _nbits(kmax - kmin))
 
 
 #: Leading bits sorted by the LSD passes; ties in them are settled afterwards.
@@ -214,7 +214,7 @@ def radix_segment(ka, ia, kb, ib, lo, hi, count):
     kmin, kmax = _min_max(ka, lo, hi)
     nbits = _nbits(kmax - kmin)
     if nbits <= TOP_BITS + RADIX_BITS:
-        return _lsd_passes(ka, ia, kb, ib, lo, hi, count, kmin, 0, nbits)
+        return _lsd_passes(ka, ia, kb, ib, lo, hi, count, kmin, np.int64(0), nbits)
     low = nbits - TOP_BITS
     in_a = _lsd_passes(ka, ia, kb, ib, lo, hi, count, kmin, low, nbits)
     if in_a:
@@ -241,11 +241,11 @@ def radix_segment(ka, ia, kb, ib, lo, hi, count):
 def sort_sequential(lower, upper, axis, keys, keys_tmp, idx, idx_tmp):
     """IDXSORT of one axis in a single thread (Algorithm 1, lines 5 and 15)."""
     n2 = 2 * lower.shape[0]
-    _endpoint_keys_chunk(lower, upper, axis, keys, 0, n2)
+    _endpoint_keys_chunk(lower, upper, axis, keys, np.int64(0), n2)
     for e in range(n2):
         idx[e] = e
     count = np.empty(MAX_PASSES * RADIX, np.int64)
-    if not radix_segment(keys, idx, keys_tmp, idx_tmp, 0, n2, count):
+    if not radix_segment(keys, idx, keys_tmp, idx_tmp, np.int64(0), n2, count):
         for e in range(n2):
             idx[e] = idx_tmp[e]
 

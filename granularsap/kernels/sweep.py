@@ -92,7 +92,7 @@ def pairing_sequential(iy, n, rank, rinv, lcand, ucand, br, tree, off, out):
         i = iy[k]
         if i < n:  # line 17
             r = rank[i]
-            cnt, t = _scan_range(tree, off, lcand[i], ucand[i], 0, br[r, 0], br[r, 1],
+            cnt, t = _scan_range(tree, off, lcand[i], ucand[i], np.int64(0), br[r, 0], br[r, 1],
                                  br[r, 2], br[r, 3], br, rinv, i, out, cnt,
                                  cap)  # lines 18-20
             tested += t
