@@ -86,7 +86,7 @@ def pairing_sequential(iy, n, rank, rinv, lcand, ucand, br, tree, off, out):
     """
     st.clear(tree, off)
     cap = out.shape[0] // 2
-    cnt = 0
+    cnt = np.int64(0)  # (typed: a literal 0 would compile _scan_range twice)
     tested = 0
     for k in range(2 * n):  # line 16
         i = iy[k]
