@@ -363,6 +363,7 @@ class PairIdentity(_Rows):
         self._hvals = np.zeros(0, np.int64)
         self._todo = None  # this call's pairs the in-step pass left
         self._table = np.zeros((0, 3), np.int64)  # hash table of the previous rows left
+        self._slots = np.zeros(0, np.int64)  # their home slots in it
         self._clumps = None
         self.clump_pairs = None
         self._entries = None  # (list, entries) of the previous call, when increasing
@@ -600,7 +601,9 @@ class PairIdentity(_Rows):
         parts = 1
         while 2 * parts <= chunks and size // (2 * parts) >= _PART_SLOTS:
             parts *= 2
-        kernels.rest_table(prev_pairs, prev[1], self.shifts, left, shift, parts, self._table)
+        self._slots = _grow(self._slots, len(left), np.int64)
+        kernels.rest_table(prev_pairs, prev[1], self.shifts, left, shift, parts, self._slots,
+                           self._table)
         kernels.match_rest(pairs, m, mapped, prev[2], self.shifts, shifts, jumps, prev_pairs,
                            prev[1], bounds, todo, todo_counts, shift, parts, self._table, out,
                            matched)

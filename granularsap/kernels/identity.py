@@ -354,28 +354,36 @@ def _hash5(lo, hi, s0, s1, s2, mask, shift):
 
 
 @pjit
-def rest_table(prev_pairs, prev_shifts, with_shift, left, shift, parts, table):
+def rest_table(prev_pairs, prev_shifts, with_shift, left, shift, parts, slots, table):
     """The hash table of pass 2 (``match_rest``): the previous rows pass 1 left
     (``left``), each at the slot of its canonical key (``table`` (size, 3): the
     key's two rows and the previous row, or -1 for an empty slot).  The table
     is ``parts`` equal parts (a power of two), each filled by one thread with
     the keys that hash into it, probing within it (``_next_slot``): every key
-    lands where one thread alone would put it, in the order of ``left``."""
+    lands where one thread alone would put it, in the order of ``left``.  Each
+    key's home slot is hashed once first (into ``slots``, as long as ``left``
+    at least), so that a part reads the keys of its own rows only."""
     size = table.shape[0]
     mask = np.int64(size - 1)
     ushift = np.uint64(shift)
     psize = size // parts
     pmask = np.int64(psize - 1)
+    m = left.shape[0]
+    step = (m + parts - 1) // parts
+    for part in numba.prange(parts):
+        for i in range(part * step, min(m, (part + 1) * step)):
+            lo, hi, t0, t1, t2 = _prev_key(prev_pairs, prev_shifts, with_shift, left[i])
+            slots[i] = _hash5(lo, hi, t0, t1, t2, mask, ushift)
     for part in numba.prange(parts):
         base = part * psize
         for s in range(base, base + psize):
             table[s, 2] = -1
-        for i in range(left.shape[0]):
-            q = left[i]
-            lo, hi, t0, t1, t2 = _prev_key(prev_pairs, prev_shifts, with_shift, q)
-            s = _hash5(lo, hi, t0, t1, t2, mask, ushift)
+        for i in range(m):
+            s = slots[i]
             if s - base < 0 or s - base >= psize:
                 continue
+            q = left[i]
+            lo, hi, t0, t1, t2 = _prev_key(prev_pairs, prev_shifts, with_shift, q)
             while table[s, 2] >= 0:
                 s = _next_slot(s, pmask)
             table[s, 0] = lo
