@@ -129,6 +129,15 @@ def jit(func):
     return numba.njit(**_OPTIONS)(func)
 
 
+def hjit(func):
+    """Decorator for serial kernels called only from other kernels: numba builds
+    no CPython entry point for them (a 34-argument entry is a sizeable function of
+    its own to compile on a cold cache).  A call from Python crashes the process
+    instead of raising: ``tests/test_kernel_signatures.py`` checks that every call
+    of one is inside a kernel."""
+    return numba.njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, **_OPTIONS)(func)
+
+
 def ijit(func):
     """Decorator for small serial helpers, inlined into their callers at numba's
     IR level: no call overhead or argument packing in hot loops, and no

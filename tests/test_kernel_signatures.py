@@ -164,5 +164,72 @@ def test_every_module_with_kernels_is_checked():
     with_kernels = sorted(
         ".".join(path.relative_to(root).with_suffix("").parts)
         for path in (root / "granularsap").rglob("*.py")
-        if re.search(r"^@(p|i)?jit\b", path.read_text(), re.MULTILINE))
+        if re.search(r"^@(p|i|h)?jit\b", path.read_text(), re.MULTILINE))
     assert with_kernels == sorted(MODULES)
+
+
+# ----------------------------------------------- helpers without a Python entry
+
+
+def _entryless(module):
+    """Names of the kernels of ``module`` compiled without a CPython entry point
+    (``hjit``): numba gives them none, and a call from Python crashes the process."""
+    return {name for name, d in _kernels(module) if d.targetoptions.get("no_cpython_wrapper")}
+
+
+def _is_kernel(fn):
+    for d in fn.decorator_list:
+        target = d.func if isinstance(d, ast.Call) else d
+        name = target.attr if isinstance(target, ast.Attribute) else getattr(target, "id", "")
+        if name.endswith("jit"):
+            return True
+    return False
+
+
+def _python_calls(source, names):
+    """(line, name, caller) of every call of one of ``names`` outside a kernel."""
+    found = []
+
+    def visit(node, fn):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                visit(child, child)
+                continue
+            if isinstance(child, ast.Call):
+                f = child.func
+                name = f.id if isinstance(f, ast.Name) else getattr(f, "attr", None)
+                if name in names and (fn is None or not _is_kernel(fn)):
+                    found.append((child.lineno, name, fn.name if fn else "<module>"))
+            visit(child, fn)
+
+    visit(ast.parse(source), None)
+    return found
+
+
+def test_helpers_without_an_entry_are_called_from_kernels_only():
+    names = set()
+    for name in MODULES:
+        names |= _entryless(importlib.import_module(name))
+    assert names, "no hjit helpers found: the check would pass on nothing"
+    root = pathlib.Path(__file__).resolve().parent.parent
+    paths = [p for folder in ("granularsap", "tests", "examples", "benchmarks")
+             for p in (root / folder).rglob("*.py")]
+    calls = [(str(p.relative_to(root)), *c) for p in paths
+             for c in _python_calls(p.read_text(), names)]
+    assert calls == []
+
+
+def test_the_entry_check_finds_a_python_call():
+    source = textwrap.dedent('''
+        @hjit
+        def helper(a):
+            return a
+
+        @jit
+        def kernel(a):
+            return helper(a)
+
+        def wrapper(a):
+            return kernels.helper(a) + kernel(a)
+    ''')
+    assert _python_calls(source, {"helper"}) == [(11, "helper", "wrapper")]

@@ -72,7 +72,7 @@ from types import SimpleNamespace
 import numba
 import numpy as np
 
-from .._numba import ijit, jit, pjit, serial_twin
+from .._numba import hjit, ijit, jit, pjit, serial_twin
 from .common import lower_bound, stable_argsort
 
 #: exponent buckets of the size histogram: 0 holds zero-size boxes, ``b``
@@ -328,7 +328,7 @@ def _scan_z(q, e, top, bot, pxl, pxu, pyl, pyu, ip, xl, xu, yl, yu, zl, zu, perm
     return pos, tested
 
 
-@jit
+@hjit
 def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, o0, o1, inv0, inv1, h0, h1, rz, half, xl, xu,
                  yl, yu, zl, zu, perm, out, base, cap):
     """Pairs of the columns ``[c_lo, c_hi)``; writes at most ``cap`` pairs from
@@ -435,7 +435,7 @@ def sweep(chunk_cols, start, nb0, nb1, o0, o1, inv0, inv1, h0, h1, rz, half, xl,
                                           yu, zl, zu, perm, out, 2 * reg_start[c], reg_cap[c])
 
 
-@jit
+@hjit
 def _big_chunk(b_lo, b_hi, big0, start, nb0, nb1, o0, o1, inv0, inv1, reach_z, xl, xu, yl,
                yu, zl, zu, perm, out, base, cap):
     """Big boxes ``[b_lo, b_hi)`` (positions ``big0 + k`` of the column order)

@@ -79,7 +79,7 @@ from types import SimpleNamespace
 import numba
 import numpy as np
 
-from .._numba import ijit, jit, pjit, serial_twin
+from .._numba import hjit, ijit, jit, pjit, serial_twin
 from .bits import ctpop, cttz
 from .common import (  # noqa: F401 (re-exported)
     OFF,
@@ -186,9 +186,10 @@ def frame_band(wmax, kmax, cell, pbc, widths, reach, tmax, x2):
     wmin = math.inf
     for r in range(3):
         if pbc[r]:
-            wmin = min(wmin, widths[r])
+            wmin = widths[r] if widths[r] < wmin else wmin
             for c in range(3):
-                cmax = max(cmax, abs(cell[r, c]))
+                a = abs(cell[r, c])
+                cmax = a if a > cmax else cmax
     smax = 6.0 + math.ceil(2.0 * reach / wmin) if wmin < math.inf else 0.0
     return band(wmax, kmax, cmax, smax, tmax, x2)
 
@@ -310,8 +311,8 @@ def wrap(x, hinv, cell, diag, pbc, t, k, w, n_chunks):
     for ch in range(n_chunks):
         if bad[ch] >= 0:
             return bad[ch], extent, kmax
-        extent = max(extent, ext[ch])
-        kmax = max(kmax, kext[ch])
+        extent = ext[ch] if ext[ch] > extent else extent
+        kmax = kext[ch] if kext[ch] > kmax else kmax
     return -1, extent, kmax
 
 
@@ -376,8 +377,8 @@ def wrap_sorted(x, perm, hinv, cell, diag, pbc, t_build, n_chunks, t, k, w, m, d
     for ch in range(n_chunks):
         if bad[ch] >= 0:
             return bad[ch], extent, kmax
-        extent = max(extent, ext[ch])
-        kmax = max(kmax, kext[ch])
+        extent = ext[ch] if ext[ch] > extent else extent
+        kmax = kext[ch] if kext[ch] > kmax else kmax
     return -1, extent, kmax
 
 
@@ -389,10 +390,12 @@ def columns_of(t, lo, inv_f, nb0, nb1, col):
     """Column index of every particle from its fractional coordinates."""
     n = t.shape[0]
     for i in numba.prange(n):
-        b0 = int(math.floor((t[i, 0] - lo[0]) * inv_f[0]))
-        b1 = int(math.floor((t[i, 1] - lo[1]) * inv_f[1]))
-        b0 = min(max(b0, 0), nb0 - 1)
-        b1 = min(max(b1, 0), nb1 - 1)
+        b0 = np.int64(math.floor((t[i, 0] - lo[0]) * inv_f[0]))
+        b1 = np.int64(math.floor((t[i, 1] - lo[1]) * inv_f[1]))
+        b0 = b0 if b0 > 0 else 0
+        b1 = b1 if b1 > 0 else 0
+        b0 = b0 if b0 < nb0 - 1 else nb0 - 1
+        b1 = b1 if b1 < nb1 - 1 else nb1 - 1
         col[i] = b0 * nb1 + b1
 
 
@@ -522,7 +525,7 @@ def _pair_test(q, p, xs, ys, zs, ls, use_label, diag, ax, ay, az, bx, by, bz, cx
     return ok, d2, dx, dy, dz
 
 
-@jit
+@hjit
 def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label,
                  cell, diag, stencil, rmax, reach, inv_w2, self_images, skin, strict, uniform,
                  x2, in2, out2, dtol, exact, xg, perm, kp, words, rec_p, rec_q, rec_s, wbase,
@@ -680,7 +683,7 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                     cz = ka * cell[2, 2]
                     tested += qb - qa
                     for base in range(qa, qb, 64):
-                        top = min(base + 64, qb)
+                        top = base + 64 if base + 64 < qb else qb
                         word = np.uint64(0)
                         # unsigned indices need no wraparound fix (so the loops
                         # vectorise) and, unlike slices, no reference counting
@@ -778,7 +781,7 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                     ka += 1
     return cnt, tested, w
 
-@jit
+@hjit
 def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls, use_label,
                   cell, diag, self_images, skin, strict, uniform, x2, perm, kw, xg, exact,
                   want_d, want_vec, want_shift, out_p, out_d, out_v, out_s):
@@ -832,8 +835,8 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
                 dz = (((zs[q] - zp) + az) + bz) + cz
             d2 = dx * dx + dy * dy + dz * dz
             flip = iq < ip
-            out_p[uo, 0] = min(ip, iq)
-            out_p[uo, 1] = max(ip, iq)
+            out_p[uo, 0] = iq if iq < ip else ip
+            out_p[uo, 1] = iq if iq > ip else ip
             if want_d:
                 out_d[uo] = math.sqrt(d2)
             if want_vec:
@@ -965,8 +968,8 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
                 ok = (d < thr) | (incl & (d == thr))
                 iq = perm[q]
                 flip = iq < ip
-                out_p[o, 0] = min(ip, iq)
-                out_p[o, 1] = max(ip, iq)
+                out_p[o, 0] = iq if iq < ip else ip
+                out_p[o, 1] = iq if iq > ip else ip
                 if want_d:
                     out_d[o] = d
                 if want_vec:
@@ -1069,8 +1072,8 @@ def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, rs, s
                 if o >= end:
                     break
                 flip = iq < ip
-                out_p[o, 0] = min(ip, iq)
-                out_p[o, 1] = max(ip, iq)
+                out_p[o, 0] = iq if iq < ip else ip
+                out_p[o, 1] = iq if iq > ip else ip
                 if want_d:
                     out_d[o] = d
                 if want_vec:
@@ -1116,7 +1119,7 @@ def csr_from_pairs(n, pairs, dist, want_d, offsets, col, cd):
 # distances are those of the general path bit for bit.
 
 
-@jit
+@hjit
 def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, cell, diag,
                  stencil, rmax, reach, inv_w2, skin, strict, uniform, x2, in2, out2, dtol,
                  exact, xg, perm, kp, words, rec_p, rec_q, rec_s, wcap, levels, big, r_small,
@@ -1251,7 +1254,7 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                     qa = zidx[zrow + _zbucket(lo_v - kf, zlo, inv_bz, ztop)]
                     qb = zidx[zrow + _zbucket(hi_v - kf, zlo, inv_bz, ztop) + 1]
                     if own and ka == 0:
-                        qa = max(qa, p + 1)
+                        qa = qa if qa > p else p + 1
                     if qa >= qb:
                         continue
                     cx = ka * cell[2, 0]
@@ -1259,7 +1262,7 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                     cz = ka * cell[2, 2]
                     tested += qb - qa
                     for base in range(qa, qb, 64):
-                        top = min(base + 64, qb)
+                        top = base + 64 if base + 64 < qb else qb
                         word = np.uint64(0)
                         ub = np.uint64(base)
                         if fast is not None and exact:
@@ -1404,11 +1407,14 @@ def wide_columns(nb0, nb1, n, delta2, span2):
         return nb0, nb1
     f = MAX_WIDEN
     if per_window > 0.0:
-        f = min(MAX_WIDEN, math.sqrt(WINDOW_TARGET / per_window))
-    return max(1, int(math.floor(nb0 / f))), max(1, int(math.floor(nb1 / f)))
+        g = math.sqrt(WINDOW_TARGET / per_window)
+        f = g if g < MAX_WIDEN else MAX_WIDEN
+    w0 = np.int64(math.floor(nb0 / f))
+    w1 = np.int64(math.floor(nb1 / f))
+    return (w0 if w0 > 1 else 1), (w1 if w1 > 1 else 1)
 
 
-@jit
+@hjit
 def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x2,
                 guard_rel, r_small, fresh, prev, t, k, w, col, perm, start, cursor, tz, xs,
                 ys, zs, rs, ls, big, stencil, kp, zidx, ts0, ts1):
@@ -1473,14 +1479,18 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
     d0 = bin_range / widths[0]
     d1 = bin_range / widths[1]
     if span0 > 0:
-        nb0 = int(max(1.0, math.floor(min(span0 / d0 if d0 > 0 else math.inf, 65536.0))))
+        v = span0 / d0 if d0 > 0 else math.inf
+        nb0 = np.int64(math.floor(v)) if v < 65536.0 else 65536
+        nb0 = nb0 if nb0 > 1 else 1
     if span1 > 0:
-        nb1 = int(max(1.0, math.floor(min(span1 / d1 if d1 > 0 else math.inf, 65536.0))))
-    while nb0 * nb1 > max(1, n) and max(nb0, nb1) > 1:
+        v = span1 / d1 if d1 > 0 else math.inf
+        nb1 = np.int64(math.floor(v)) if v < 65536.0 else 65536
+        nb1 = nb1 if nb1 > 1 else 1
+    while nb0 * nb1 > (n if n > 1 else 1) and (nb0 > 1 or nb1 > 1):
         if nb0 >= nb1:
-            nb0 = max(1, nb0 // 2)
+            nb0 = nb0 // 2 if nb0 > 1 else 1
         else:
-            nb1 = max(1, nb1 // 2)
+            nb1 = nb1 // 2 if nb1 > 1 else 1
     crowded = 32.0  # (a bucket of a column one range wide; wider ones hold more)
     if not levels and n <= WIDE_MAX:  # as the general path's plan_columns
         wide0, wide1 = wide_columns(nb0, nb1, n, bin_range / widths[2], span2)
@@ -1499,18 +1509,18 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
         nb1 = 1
         inv1 = 0.0
         f1 = 0.0
-    L0 = 1 if (f0 >= d0 or f0 == 0) else int(math.ceil(d0 / f0))
-    L1 = 1 if (f1 >= d1 or f1 == 0) else int(math.ceil(d1 / f1))
+    L0 = 1 if (f0 >= d0 or f0 == 0) else np.int64(math.ceil(d0 / f0))
+    L1 = 1 if (f1 >= d1 or f1 == 0) else np.int64(math.ceil(d1 / f1))
     db0 = big_range / widths[0]
     db1 = big_range / widths[1]
-    B0 = 1 if (f0 >= db0 or f0 == 0) else int(math.ceil(db0 / f0))
-    B1 = 1 if (f1 >= db1 or f1 == 0) else int(math.ceil(db1 / f1))
+    B0 = 1 if (f0 >= db0 or f0 == 0) else np.int64(math.ceil(db0 / f0))
+    B1 = 1 if (f1 >= db1 or f1 == 0) else np.int64(math.ceil(db1 / f1))
     if not pbc[0]:
-        L0 = min(L0, nb0 - 1)
-        B0 = min(B0, nb0 - 1)
+        L0 = L0 if L0 < nb0 - 1 else nb0 - 1
+        B0 = B0 if B0 < nb0 - 1 else nb0 - 1
     if not pbc[1]:
-        L1 = min(L1, nb1 - 1)
-        B1 = min(B1, nb1 - 1)
+        L1 = L1 if L1 < nb1 - 1 else nb1 - 1
+        B1 = B1 if B1 < nb1 - 1 else nb1 - 1
     n_st = 0
     for o0 in range(-L0, L0 + 1):
         for o1 in range(-L1, L1 + 1):
@@ -1537,10 +1547,12 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
     for c in range(ncol + 1):
         start[c] = 0
     for i in range(n):
-        b0 = int(math.floor((t[i, 0] - lo0) * inv0))
-        b1 = int(math.floor((t[i, 1] - lo1) * inv1))
-        b0 = min(max(b0, 0), nb0 - 1)
-        b1 = min(max(b1, 0), nb1 - 1)
+        b0 = np.int64(math.floor((t[i, 0] - lo0) * inv0))
+        b1 = np.int64(math.floor((t[i, 1] - lo1) * inv1))
+        b0 = b0 if b0 > 0 else 0
+        b1 = b1 if b1 > 0 else 0
+        b0 = b0 if b0 < nb0 - 1 else nb0 - 1
+        b1 = b1 if b1 < nb1 - 1 else nb1 - 1
         col[i] = b0 * nb1 + b1
         start[col[i] + 1] += 1
     for c in range(ncol):
@@ -1612,7 +1624,8 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
     bw = 0.125 * (2.0 * (r_small if levels else rmax) + reach) * inv_w2
     cap_nz = 2 * ((n + ncol - 1) // ncol) + 1
     nzf = span / bw if bw > 0.0 else math.inf
-    nz = max(1, int(math.ceil(nzf))) if nzf < cap_nz else cap_nz
+    nz = np.int64(math.ceil(nzf)) if nzf < cap_nz else cap_nz
+    nz = nz if nz > 1 else 1
     inv_bz = nz / span if span > 0.0 else 0.0
     if not math.isfinite(inv_bz):
         nz = 1
@@ -1628,7 +1641,8 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
         for c in range(ncol):
             row = c * (nz + 1)
             for b in range(nz):
-                fullest = max(fullest, zidx[row + b + 1] - zidx[row + b])
+                m = zidx[row + b + 1] - zidx[row + b]
+                fullest = m if m > fullest else fullest
         use_z = fullest <= crowded
     if not use_z:
         # the general path's pointer walk (search._build), whose kernels compile

@@ -60,7 +60,7 @@ from types import SimpleNamespace
 import numba
 import numpy as np
 
-from .._numba import ijit, jit, pjit, serial_twin
+from .._numba import hjit, ijit, jit, pjit, serial_twin
 from .common import lower_bound
 
 _MIX = np.uint64(0x9E3779B97F4A7C15)
@@ -192,7 +192,7 @@ _RESYNC = 1024
 _ANCHORS = 8
 
 
-@jit
+@hjit
 def _find_near(prev_pairs, prev_shifts, with_shift, g, reach, lo, hi, s0, s1, s2):
     """The previous row of ``(lo, hi, s)`` within ``reach`` rows of ``g``, nearest
     first, or -1."""
@@ -273,28 +273,28 @@ def _in_step_chunk(c, pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_
 # and its serial twin both call with an int64 ``c`` (a prange index is unsigned:
 # a second signature): the body compiles once per variant.
 
-@jit
+@hjit
 def _chunk(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds, reach,
            prev_rows, matched, todo, todo_counts):
     _in_step_chunk(c, pairs, m, False, n_prev, False, shifts, jumps, prev_pairs, prev_shifts,
                    bounds, reach, prev_rows, matched, todo, todo_counts)
 
 
-@jit
+@hjit
 def _chunk_ids(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds, reach,
                prev_rows, matched, todo, todo_counts):
     _in_step_chunk(c, pairs, m, True, n_prev, False, shifts, jumps, prev_pairs, prev_shifts,
                    bounds, reach, prev_rows, matched, todo, todo_counts)
 
 
-@jit
+@hjit
 def _chunk_shifts(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds, reach,
                   prev_rows, matched, todo, todo_counts):
     _in_step_chunk(c, pairs, m, False, n_prev, True, shifts, jumps, prev_pairs, prev_shifts,
                    bounds, reach, prev_rows, matched, todo, todo_counts)
 
 
-@jit
+@hjit
 def _chunk_ids_shifts(c, pairs, m, n_prev, shifts, jumps, prev_pairs, prev_shifts, bounds, reach,
                       prev_rows, matched, todo, todo_counts):
     _in_step_chunk(c, pairs, m, True, n_prev, True, shifts, jumps, prev_pairs, prev_shifts,

@@ -76,7 +76,7 @@ from types import SimpleNamespace
 import numba
 import numpy as np
 
-from .._numba import ijit, jit, pjit, serial_twin
+from .._numba import hjit, ijit, pjit, serial_twin
 from .bits import ctpop, cttz
 from .common import hit, lower_bound, separation_between, zbucket
 
@@ -257,7 +257,7 @@ def _run_mask(g, lo, hi, xp, yp, zp, rp, ax, ay, az, bx, by, bz, cx, cy, cz, ts)
     return word
 
 
-@jit
+@hjit
 def _rows_of(i, g, ref, ts, rec, wbase, wcap, w):
     """Pass 1 of reference point ``i``: its pairs, kept as records (``Rec``) from
     ``wbase + w`` while they fit under ``wcap``.  Returns (pairs, candidates
@@ -413,7 +413,7 @@ def _rows_of(i, g, ref, ts, rec, wbase, wcap, w):
     return cnt, tested, w
 
 
-@jit
+@hjit
 def _fill_records(r_lo, r_hi, g, ref, ts, offsets, rec, out):
     """Pass 2: the pairs of records ``[r_lo, r_hi)`` (those of whole reference
     points, in the order pass 1 made them), each reference point's from its

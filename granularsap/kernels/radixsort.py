@@ -34,7 +34,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .._numba import ijit, jit, pjit
+from .._numba import hjit, ijit, jit, pjit
 
 SIGN = np.uint64(0x8000000000000000)
 RADIX_BITS = 11
@@ -56,7 +56,7 @@ def float_key(x):
     return u | SIGN
 
 
-@jit
+@hjit
 def _endpoint_keys_chunk(lower, upper, axis, keys, start, stop):
     n = lower.shape[0]
     kv = keys.view(np.float64)
@@ -73,7 +73,7 @@ def _endpoint_keys_chunk(lower, upper, axis, keys, start, stop):
             keys[e] = u | SIGN
 
 
-@jit
+@hjit
 def _bucket_of(key, bounds):
     """Number of boundaries <= key (binary search): the bucket index."""
     lo = 0
@@ -87,7 +87,7 @@ def _bucket_of(key, bounds):
     return lo
 
 
-@jit
+@hjit
 def _insertion_sort(keys, idx, lo, hi):
     for a in range(lo + 1, hi):
         k = keys[a]
@@ -101,7 +101,7 @@ def _insertion_sort(keys, idx, lo, hi):
         idx[b + 1] = v
 
 
-@jit
+@hjit
 def _lsd_passes(ka, ia, kb, ib, lo, hi, count, kmin, shift, stop):
     """Stable LSD passes over bits ``[shift, stop)`` of ``key - kmin``.
 
@@ -155,7 +155,7 @@ def _lsd_passes(ka, ia, kb, ib, lo, hi, count, kmin, shift, stop):
     return in_a
 
 
-@jit
+@hjit
 def _min_max(keys, lo, hi):
     kmin = keys[lo]
     kmax = keys[lo]
@@ -168,7 +168,7 @@ def _min_max(keys, lo, hi):
     return kmin, kmax
 
 
-@jit
+@hjit
 def _nbits(x):
     nbits = 0
     while x != 0:
@@ -177,7 +177,7 @@ def _nbits(x):
     return nbits
 
 
-@jit
+@hjit
 def _radix_plain(ka, ia, kb, ib, lo, hi, count):
     """Stable LSD radix sort of ``[lo, hi)`` over all bits in which keys differ."""
     if hi - lo <= 32:

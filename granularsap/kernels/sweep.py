@@ -29,7 +29,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .._numba import ijit, jit, pjit
+from .._numba import hjit, ijit, jit, pjit
 from . import succtree as st
 from .bits import ALL, cttz
 
@@ -39,7 +39,7 @@ OWN = np.int64(1) << 60
 RANK_MASK = np.int64(0xFFFFFFFF)
 
 
-@jit
+@hjit
 def _scan_range(tree, off, lo, hi, base, xlo, xhi, zlo, zhi, br, rinv, me,
                 out, cnt, cap):
     """Range query ``S ∩ [lo, hi)`` (Algorithm 1 line 18 / Algorithm 4 line 13)
