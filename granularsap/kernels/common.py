@@ -66,8 +66,7 @@ def zbucket(v, zlo, inv_bz, top):
     """Bucket of sweep coordinate ``v`` on a grid of the sweep axis: ``floor((v -
     zlo) * inv_bz)`` clamped to ``[0, top]`` (monotone in ``v``)."""
     f = (v - zlo) * inv_bz
-    f = f if f > 0.0 else 0.0
-    f = f if f < top else top
+    f = min(max(f, 0.0), top)
     return np.int64(f)
 
 
@@ -89,15 +88,13 @@ def stable_argsort(vals):
     (``np.argsort(vals, kind="stable")`` for finite values): a bottom-up merge
     sort, which compiles in a fraction of the time numba's own takes."""
     m = vals.shape[0]
-    order = np.empty(m, np.int64)
-    for i in range(m):
-        order[i] = i
+    order = np.arange(m)
     tmp = np.empty(m, np.int64)
     width = 1
     while width < m:
         for lo in range(0, m, 2 * width):
-            mid = lo + width if lo + width < m else m
-            hi = lo + 2 * width if lo + 2 * width < m else m
+            mid = min(lo + width, m)
+            hi = min(lo + 2 * width, m)
             a, b, k = lo, mid, lo
             while a < mid and b < hi:
                 if vals[order[b]] < vals[order[a]]:  # strictly less: ties keep the left

@@ -186,10 +186,9 @@ def frame_band(wmax, kmax, cell, pbc, widths, reach, tmax, x2):
     wmin = math.inf
     for r in range(3):
         if pbc[r]:
-            wmin = widths[r] if widths[r] < wmin else wmin
+            wmin = min(wmin, widths[r])
             for c in range(3):
-                a = abs(cell[r, c])
-                cmax = a if a > cmax else cmax
+                cmax = max(cmax, abs(cell[r, c]))
     smax = 6.0 + math.ceil(2.0 * reach / wmin) if wmin < math.inf else 0.0
     return band(wmax, kmax, cmax, smax, tmax, x2)
 
@@ -311,8 +310,8 @@ def wrap(x, hinv, cell, diag, pbc, t, k, w, n_chunks):
     for ch in range(n_chunks):
         if bad[ch] >= 0:
             return bad[ch], extent, kmax
-        extent = ext[ch] if ext[ch] > extent else extent
-        kmax = kext[ch] if kext[ch] > kmax else kmax
+        extent = max(extent, ext[ch])
+        kmax = max(kmax, kext[ch])
     return -1, extent, kmax
 
 
@@ -377,8 +376,8 @@ def wrap_sorted(x, perm, hinv, cell, diag, pbc, t_build, n_chunks, t, k, w, m, d
     for ch in range(n_chunks):
         if bad[ch] >= 0:
             return bad[ch], extent, kmax
-        extent = ext[ch] if ext[ch] > extent else extent
-        kmax = kext[ch] if kext[ch] > kmax else kmax
+        extent = max(extent, ext[ch])
+        kmax = max(kmax, kext[ch])
     return -1, extent, kmax
 
 
@@ -390,12 +389,10 @@ def columns_of(t, lo, inv_f, nb0, nb1, col):
     """Column index of every particle from its fractional coordinates."""
     n = t.shape[0]
     for i in numba.prange(n):
-        b0 = np.int64(math.floor((t[i, 0] - lo[0]) * inv_f[0]))
-        b1 = np.int64(math.floor((t[i, 1] - lo[1]) * inv_f[1]))
-        b0 = b0 if b0 > 0 else 0
-        b1 = b1 if b1 > 0 else 0
-        b0 = b0 if b0 < nb0 - 1 else nb0 - 1
-        b1 = b1 if b1 < nb1 - 1 else nb1 - 1
+        b0 = int(math.floor((t[i, 0] - lo[0]) * inv_f[0]))
+        b1 = int(math.floor((t[i, 1] - lo[1]) * inv_f[1]))
+        b0 = min(max(b0, 0), nb0 - 1)
+        b1 = min(max(b1, 0), nb1 - 1)
         col[i] = b0 * nb1 + b1
 
 
@@ -683,7 +680,7 @@ def _sweep_chunk(c_lo, c_hi, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_l
                     cz = ka * cell[2, 2]
                     tested += qb - qa
                     for base in range(qa, qb, 64):
-                        top = base + 64 if base + 64 < qb else qb
+                        top = min(base + 64, qb)
                         word = np.uint64(0)
                         # unsigned indices need no wraparound fix (so the loops
                         # vectorise) and, unlike slices, no reference counting
@@ -835,8 +832,8 @@ def _records_fill(r_lo, r_hi, o, words, rec_p, rec_q, rec_s, xs, ys, zs, rs, ls,
                 dz = (((zs[q] - zp) + az) + bz) + cz
             d2 = dx * dx + dy * dy + dz * dz
             flip = iq < ip
-            out_p[uo, 0] = iq if iq < ip else ip
-            out_p[uo, 1] = iq if iq > ip else ip
+            out_p[uo, 0] = min(ip, iq)
+            out_p[uo, 1] = max(ip, iq)
             if want_d:
                 out_d[uo] = math.sqrt(d2)
             if want_vec:
@@ -968,8 +965,8 @@ def records_narrow(fill, wstart, wneed, offsets, counts, words, rec_p, rec_q, re
                 ok = (d < thr) | (incl & (d == thr))
                 iq = perm[q]
                 flip = iq < ip
-                out_p[o, 0] = iq if iq < ip else ip
-                out_p[o, 1] = iq if iq > ip else ip
+                out_p[o, 0] = min(ip, iq)
+                out_p[o, 1] = max(ip, iq)
                 if want_d:
                     out_d[o] = d
                 if want_vec:
@@ -1072,8 +1069,8 @@ def narrow_fill(chunk_rows, offsets, counts, vstart, vstop, vb, vs, ws, m, rs, s
                 if o >= end:
                     break
                 flip = iq < ip
-                out_p[o, 0] = iq if iq < ip else ip
-                out_p[o, 1] = iq if iq > ip else ip
+                out_p[o, 0] = min(ip, iq)
+                out_p[o, 1] = max(ip, iq)
                 if want_d:
                     out_d[o] = d
                 if want_vec:
@@ -1254,7 +1251,7 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                     qa = zidx[zrow + _zbucket(lo_v - kf, zlo, inv_bz, ztop)]
                     qb = zidx[zrow + _zbucket(hi_v - kf, zlo, inv_bz, ztop) + 1]
                     if own and ka == 0:
-                        qa = qa if qa > p else p + 1
+                        qa = max(qa, p + 1)
                     if qa >= qb:
                         continue
                     cx = ka * cell[2, 0]
@@ -1262,7 +1259,7 @@ def _small_sweep(ncol, start, nb0, nb1, pbc, tz, xs, ys, zs, rs, ls, use_label, 
                     cz = ka * cell[2, 2]
                     tested += qb - qa
                     for base in range(qa, qb, 64):
-                        top = base + 64 if base + 64 < qb else qb
+                        top = min(base + 64, qb)
                         word = np.uint64(0)
                         ub = np.uint64(base)
                         if fast is not None and exact:
@@ -1407,11 +1404,8 @@ def wide_columns(nb0, nb1, n, delta2, span2):
         return nb0, nb1
     f = MAX_WIDEN
     if per_window > 0.0:
-        g = math.sqrt(WINDOW_TARGET / per_window)
-        f = g if g < MAX_WIDEN else MAX_WIDEN
-    w0 = np.int64(math.floor(nb0 / f))
-    w1 = np.int64(math.floor(nb1 / f))
-    return (w0 if w0 > 1 else 1), (w1 if w1 > 1 else 1)
+        f = min(MAX_WIDEN, math.sqrt(WINDOW_TARGET / per_window))
+    return max(1, int(math.floor(nb0 / f))), max(1, int(math.floor(nb1 / f)))
 
 
 @hjit
@@ -1479,18 +1473,14 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
     d0 = bin_range / widths[0]
     d1 = bin_range / widths[1]
     if span0 > 0:
-        v = span0 / d0 if d0 > 0 else math.inf
-        nb0 = np.int64(math.floor(v)) if v < 65536.0 else 65536
-        nb0 = nb0 if nb0 > 1 else 1
+        nb0 = int(max(1.0, math.floor(min(span0 / d0 if d0 > 0 else math.inf, 65536.0))))
     if span1 > 0:
-        v = span1 / d1 if d1 > 0 else math.inf
-        nb1 = np.int64(math.floor(v)) if v < 65536.0 else 65536
-        nb1 = nb1 if nb1 > 1 else 1
-    while nb0 * nb1 > (n if n > 1 else 1) and (nb0 > 1 or nb1 > 1):
+        nb1 = int(max(1.0, math.floor(min(span1 / d1 if d1 > 0 else math.inf, 65536.0))))
+    while nb0 * nb1 > max(1, n) and max(nb0, nb1) > 1:
         if nb0 >= nb1:
-            nb0 = nb0 // 2 if nb0 > 1 else 1
+            nb0 = max(1, nb0 // 2)
         else:
-            nb1 = nb1 // 2 if nb1 > 1 else 1
+            nb1 = max(1, nb1 // 2)
     crowded = 32.0  # (a bucket of a column one range wide; wider ones hold more)
     if not levels and n <= WIDE_MAX:  # as the general path's plan_columns
         wide0, wide1 = wide_columns(nb0, nb1, n, bin_range / widths[2], span2)
@@ -1509,18 +1499,18 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
         nb1 = 1
         inv1 = 0.0
         f1 = 0.0
-    L0 = 1 if (f0 >= d0 or f0 == 0) else np.int64(math.ceil(d0 / f0))
-    L1 = 1 if (f1 >= d1 or f1 == 0) else np.int64(math.ceil(d1 / f1))
+    L0 = 1 if (f0 >= d0 or f0 == 0) else int(math.ceil(d0 / f0))
+    L1 = 1 if (f1 >= d1 or f1 == 0) else int(math.ceil(d1 / f1))
     db0 = big_range / widths[0]
     db1 = big_range / widths[1]
-    B0 = 1 if (f0 >= db0 or f0 == 0) else np.int64(math.ceil(db0 / f0))
-    B1 = 1 if (f1 >= db1 or f1 == 0) else np.int64(math.ceil(db1 / f1))
+    B0 = 1 if (f0 >= db0 or f0 == 0) else int(math.ceil(db0 / f0))
+    B1 = 1 if (f1 >= db1 or f1 == 0) else int(math.ceil(db1 / f1))
     if not pbc[0]:
-        L0 = L0 if L0 < nb0 - 1 else nb0 - 1
-        B0 = B0 if B0 < nb0 - 1 else nb0 - 1
+        L0 = min(L0, nb0 - 1)
+        B0 = min(B0, nb0 - 1)
     if not pbc[1]:
-        L1 = L1 if L1 < nb1 - 1 else nb1 - 1
-        B1 = B1 if B1 < nb1 - 1 else nb1 - 1
+        L1 = min(L1, nb1 - 1)
+        B1 = min(B1, nb1 - 1)
     n_st = 0
     for o0 in range(-L0, L0 + 1):
         for o1 in range(-L1, L1 + 1):
@@ -1547,12 +1537,10 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
     for c in range(ncol + 1):
         start[c] = 0
     for i in range(n):
-        b0 = np.int64(math.floor((t[i, 0] - lo0) * inv0))
-        b1 = np.int64(math.floor((t[i, 1] - lo1) * inv1))
-        b0 = b0 if b0 > 0 else 0
-        b1 = b1 if b1 > 0 else 0
-        b0 = b0 if b0 < nb0 - 1 else nb0 - 1
-        b1 = b1 if b1 < nb1 - 1 else nb1 - 1
+        b0 = int(math.floor((t[i, 0] - lo0) * inv0))
+        b1 = int(math.floor((t[i, 1] - lo1) * inv1))
+        b0 = min(max(b0, 0), nb0 - 1)
+        b1 = min(max(b1, 0), nb1 - 1)
         col[i] = b0 * nb1 + b1
         start[col[i] + 1] += 1
     for c in range(ncol):
@@ -1624,8 +1612,7 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
     bw = 0.125 * (2.0 * (r_small if levels else rmax) + reach) * inv_w2
     cap_nz = 2 * ((n + ncol - 1) // ncol) + 1
     nzf = span / bw if bw > 0.0 else math.inf
-    nz = np.int64(math.ceil(nzf)) if nzf < cap_nz else cap_nz
-    nz = nz if nz > 1 else 1
+    nz = max(1, int(math.ceil(nzf))) if nzf < cap_nz else cap_nz
     inv_bz = nz / span if span > 0.0 else 0.0
     if not math.isfinite(inv_bz):
         nz = 1
@@ -1641,8 +1628,7 @@ def _small_plan(x, rad, label, use_label, cell, hinv, diag, pbc, widths, skin, x
         for c in range(ncol):
             row = c * (nz + 1)
             for b in range(nz):
-                m = zidx[row + b + 1] - zidx[row + b]
-                fullest = m if m > fullest else fullest
+                fullest = max(fullest, zidx[row + b + 1] - zidx[row + b])
         use_z = fullest <= crowded
     if not use_z:
         # the general path's pointer walk (search._build), whose kernels compile
