@@ -432,3 +432,44 @@ def test_far_point_in_a_large_frame(where, kw):
     assert np.array_equal(want[0][a], got_p[b]) and np.array_equal(want[1][a], got[1][b])
     assert search.stats["candidates_tested"] is None or (
         search.stats["candidates_tested"] < 100 * len(got_p))
+
+
+@settings(max_examples=60, **_SETTINGS)
+@given(st.data())
+def test_frame_scan_matches_numpy(data):
+    """The one-pass frame scan against numpy: the first row holding a NaN or an
+    inf, the largest and the smallest nonzero magnitude, the extents along each
+    axis, the radii checks and the comparison with the kept radii."""
+    from granularsap.search.frame import NO_RADII, scan_frame
+
+    n = data.draw(st.integers(0, 40))
+    values = st.sampled_from([0.0, -0.0, 1.0, -2.5, 3e-310, -5e-324, 1e300, -1e300,
+                              math.inf, -math.inf, math.nan, 7.25, -0.125])
+    x = np.array(data.draw(st.lists(values, min_size=3 * n, max_size=3 * n)),
+                 float).reshape(n, 3)
+    rad = np.array(data.draw(st.lists(st.sampled_from([0.0, 1.0, 2.5, -1.0, math.inf,
+                                                       math.nan]), min_size=n, max_size=n)),
+                   float)
+    kept = rad.copy() if data.draw(st.booleans()) else np.ones(n)
+    bad, hi, lo, ok, rmin, rmax, same, e0, e1, e2 = scan_frame(x, rad, kept)
+    finite = np.isfinite(x).all(axis=1)
+    assert bad == (int(np.argmin(finite)) if not finite.all() else -1)
+    a = np.abs(x)
+    seen = a[~np.isnan(a)]
+    assert hi == (seen.max() if seen.size else 0.0)
+    nonzero = seen[seen > 0]
+    assert lo == (nonzero.min() if nonzero.size else math.inf)
+    with np.errstate(invalid="ignore"):
+        assert ok == bool(np.all((rad >= 0) & (rad < math.inf)))
+        assert same == bool(np.array_equal(rad, kept))
+    if n and not np.isnan(rad).any():
+        assert (rmin, rmax) == (rad.min(), rad.max())
+    if n:
+        for c, e in enumerate((e0, e1, e2)):
+            col = x[:, c][~np.isnan(x[:, c])]
+            if col.size:
+                with np.errstate(invalid="ignore", over="ignore"):
+                    want = col.max() - col.min()
+                assert e == want or (math.isnan(e) and math.isnan(want))
+    # positions alone (``magnitudes``): the same answer for the positions
+    assert scan_frame(x, NO_RADII, NO_RADII)[:3] == (bad, hi, lo)

@@ -52,28 +52,42 @@ def scan_frame(x, rad, kept):
     ``kept`` value for value; the extent of ``x`` along each axis, the largest
     coordinate less the smallest, or 0 without particles)."""
     n = x.shape[0]
-    bad = -1
-    hi = 0.0
-    lo = np.inf
-    lo0 = lo1 = lo2 = np.inf
-    hi0 = hi1 = hi2 = -np.inf
+    # every value is compared with accumulators of its own axis: three chains of
+    # n compares, not one of 3n (the loop is bound by their latency)
+    hi0 = hi1 = hi2 = 0.0  # largest |x|
+    sm0 = sm1 = sm2 = np.inf  # smallest nonzero |x|
+    lo0 = lo1 = lo2 = np.inf  # extents
+    up0 = up1 = up2 = -np.inf
+    fin = 0.0  # NaN once a NaN or an inf was seen
     for i in range(n):
-        for c in range(x.shape[1]):
-            a = abs(x[i, c])
-            if not a < np.inf and bad < 0:
+        v0 = x[i, 0]
+        v1 = x[i, 1]
+        v2 = x[i, 2]
+        fin += (v0 - v0) + (v1 - v1) + (v2 - v2)
+        a0 = abs(v0)
+        a1 = abs(v1)
+        a2 = abs(v2)
+        hi0 = a0 if a0 > hi0 else hi0
+        hi1 = a1 if a1 > hi1 else hi1
+        hi2 = a2 if a2 > hi2 else hi2
+        sm0 = a0 if (a0 > 0.0) & (a0 < sm0) else sm0
+        sm1 = a1 if (a1 > 0.0) & (a1 < sm1) else sm1
+        sm2 = a2 if (a2 > 0.0) & (a2 < sm2) else sm2
+        lo0 = v0 if v0 < lo0 else lo0
+        up0 = v0 if v0 > up0 else up0
+        lo1 = v1 if v1 < lo1 else lo1
+        up1 = v1 if v1 > up1 else up1
+        lo2 = v2 if v2 < lo2 else lo2
+        up2 = v2 if v2 > up2 else up2
+    bad = -1
+    if not fin == 0.0:  # the first row with a NaN or an inf
+        for i in range(n):
+            if not ((abs(x[i, 0]) < np.inf) & (abs(x[i, 1]) < np.inf)
+                    & (abs(x[i, 2]) < np.inf)):
                 bad = i
-            hi = a if a > hi else hi
-            if a > 0.0 and a < lo:
-                lo = a
-        v = x[i, 0]
-        lo0 = v if v < lo0 else lo0
-        hi0 = v if v > hi0 else hi0
-        v = x[i, 1]
-        lo1 = v if v < lo1 else lo1
-        hi1 = v if v > hi1 else hi1
-        v = x[i, 2]
-        lo2 = v if v < lo2 else lo2
-        hi2 = v if v > hi2 else hi2
+                break
+    hi = max(hi0, max(hi1, hi2))
+    lo = min(sm0, min(sm1, sm2))
     ok = True
     rmin = np.inf
     rmax = -np.inf
@@ -88,7 +102,7 @@ def scan_frame(x, rad, kept):
             same = r == kept[i]
     if n == 0:
         return bad, hi, lo, ok, rmin, rmax, same, 0.0, 0.0, 0.0
-    return bad, hi, lo, ok, rmin, rmax, same, hi0 - lo0, hi1 - lo1, hi2 - lo2
+    return bad, hi, lo, ok, rmin, rmax, same, up0 - lo0, up1 - lo1, up2 - lo2
 
 
 def check_half_width(cs, reach_max, what):
