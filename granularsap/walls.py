@@ -460,13 +460,17 @@ _NO_ROWS3 = np.empty((0, 3))
 _NO_KEYS = np.empty((0, _KEY_COLUMNS), np.int64)
 
 
-def _as_ids(ids, n):
+def _as_ids(ids, n, checked=None):
+    """``ids`` as (n,) int64, checked unique; ``checked``: ids found unique before
+    (equal ids are not sorted again: a time loop passes the same ids every step)."""
     arr = np.asarray(ids)
     if arr.dtype.kind not in "iu":
         raise TypeError(f"ids must be integers, got dtype {arr.dtype}")
     if arr.shape != (n,):
         raise ValueError(f"ids must have shape ({n},) (one per sphere), got {arr.shape}")
     arr = np.ascontiguousarray(arr, dtype=np.int64)
+    if checked is not None and checked.shape == arr.shape and np.array_equal(checked, arr):
+        return checked
     if n > 1:
         srt = np.sort(arr)
         dup = np.flatnonzero(srt[1:] == srt[:-1])
@@ -558,6 +562,7 @@ class WallSearch:
         self._out = [None, None]
         self._flip = 0
         self._keys = np.empty((0, _KEY_COLUMNS), np.int64)
+        self._ids_checked = None  # the last ids found unique
         # contacts matched across calls by their integer keys (granularsap.identity)
         self._tracker = ContactIdentity(n_threads=self.n_threads) if self.identity else None
         #: per call: spheres, candidates tested, contacts, threads
@@ -664,7 +669,13 @@ class WallSearch:
         cell = Cell.coerce(box, pbc=pbc, name="box")
         if cell is not None and not cell.any_periodic:
             cell = None
-        sphere_key = np.arange(n, dtype=np.int64) if ids is None else _as_ids(ids, n)
+        if ids is None:
+            sphere_key = np.arange(n, dtype=np.int64)
+        else:
+            # (a copy kept: the caller's array may change before the next call)
+            sphere_key = _as_ids(ids, n, self._ids_checked)
+            if sphere_key is not self._ids_checked:
+                sphere_key = self._ids_checked = sphere_key.copy()
         verts = self._vertices_for(vertices)
         threads = self.n_threads
         faces = sum(len(w.faces) for w in self.walls if isinstance(w, TriangleMesh))

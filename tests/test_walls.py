@@ -909,6 +909,14 @@ class TestErrors:
             walls.update(np.zeros((2, 3)), 0.1, ids=[4])
         with pytest.raises(TypeError, match="ids must be integers"):
             walls.update(np.zeros((2, 3)), 0.1, ids=[4.0, 5.0])
+        # ids found unique once are not sorted again while equal: the same array
+        # changed in place to repeat an id is still refused
+        ids = np.array([3, 9])
+        walls.update(np.zeros((2, 3)), 0.1, ids=ids)
+        walls.update(np.zeros((2, 3)), 0.1, ids=ids)
+        ids[1] = 3
+        with pytest.raises(ValueError, match="ids must be unique, got 3 more than once"):
+            walls.update(np.zeros((2, 3)), 0.1, ids=ids)
 
     def test_plane_arguments(self):
         with pytest.raises(ValueError, match=r"normal must be a non-zero vector"):
