@@ -192,7 +192,8 @@ class Pour:
                  Plane(point=[0, width, 0], normal=[0, -1, 0])]
         self.search = ContactSearch(rebuild_margin=rebuild_margin, quantities="PdD",
                                     identity=True, n_threads=n_threads)
-        self.walls = WallSearch([*sides, floor], identity=True, n_threads=n_threads)
+        self.walls = WallSearch([*sides, floor], identity=True, n_threads=n_threads,
+                                rebuild_margin=rebuild_margin)
         self.pairs = np.empty((0, 2), np.int64)
         self.spring = np.empty((0, 3))
         self.wall_spring = np.empty((0, 3))

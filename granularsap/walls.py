@@ -495,13 +495,21 @@ class WallSearch:
     n_threads : int, optional
         Numba threads for each call; ``None`` uses numba's setting (one
         thread for small frames).  Results do not depend on it.
+    rebuild_margin : float
+        Keep each mesh's broad phase (the sphere-triangle pairs whose boxes,
+        grown by this margin, overlap) from call to call while no sphere has
+        moved by more than the margin along any axis since it was built, and
+        the mesh, the cell, the radii and the sphere count are the same (a
+        mesh wall's Verlet list, as LIGGGHTS keeps one); every call still
+        tests each kept pair exactly, so the contacts are those of a margin of
+        0.  ``stats["rebuilt"]`` says whether a call built it again.
 
     Raises
     ------
     TypeError
         A wall that is neither a Plane nor a TriangleMesh.
     ValueError
-        No walls, or a negative skin.
+        No walls, or a negative skin or rebuild margin.
 
     Notes
     -----
@@ -536,7 +544,7 @@ class WallSearch:
     ([-1], [0])
     """
 
-    def __init__(self, walls, *, skin=0.0, identity=False, n_threads=None):
+    def __init__(self, walls, *, skin=0.0, identity=False, n_threads=None, rebuild_margin=0.0):
         if isinstance(walls, (Plane, TriangleMesh)):
             walls = [walls]
         walls = list(walls)
@@ -549,12 +557,16 @@ class WallSearch:
         #: the walls, in the order contacts name them (a tuple: fixed for the search)
         self.walls = tuple(walls)
         self.skin = as_scalar(skin, "skin")
+        self.rebuild_margin = as_scalar(rebuild_margin, "rebuild_margin")
         if not isinstance(identity, (bool, np.bool_)):
             raise TypeError(f"identity must be True or False, got {type(identity).__name__}")
         self.identity = bool(identity)
         self.n_threads = check_n_threads(n_threads)
         self._geo = {}
         self._engines = {}
+        #: per mesh, the broad phase kept with ``rebuild_margin``: (geometry, the
+        #: reaches, the wrapped positions it was built on, its pairs)
+        self._kept = {}
         # kept work arrays: staging rows, scratch, double-buffered outputs, keys
         self._st_i = np.empty((16, _tri.STAGE_INT), np.int64)
         self._st_f = np.empty((16, _tri.STAGE_FLOAT))
@@ -698,6 +710,7 @@ class WallSearch:
         # one pass merges the parts into the outputs
         bounds = [0]
         tested = 0
+        self._rebuilt = False
         planes = [w for w, wall in enumerate(self.walls) if isinstance(wall, Plane)]
         if planes:
             pts, nrm = self._plane_arrays(planes, cell)
@@ -727,7 +740,8 @@ class WallSearch:
                          _NO_IDS if ids is None else sphere_key, *out,
                          keys if self.identity else _NO_KEYS)
         result = WallContacts(*(a[:k] for a in out))
-        self.stats = {"spheres": n, "candidates_tested": int(tested), "contacts": k}
+        self.stats = {"spheres": n, "candidates_tested": int(tested), "contacts": k,
+                      "rebuilt": self._rebuilt}
         if self.identity:
             self._tracker.update(keys[:k])
         return result
@@ -866,24 +880,38 @@ class WallSearch:
             corners, edges, face_edges = mesh._periodic_adjacency(verts, cell)
         else:
             corners, edges, face_edges = mesh._corners, mesh._edges, mesh._face_edges
+        margin = self.rebuild_margin
         hmax = float(h.max()) if n else 0.0
-        rows, shifts, itri, tlo, thi, top = self._geometry(w, mesh, verts, cell, hmax, threads)
+        geo = self._geometry(w, mesh, verts, cell, hmax + margin, threads)
+        rows, shifts, itri, tlo, thi, top = geo
         base = bounds[-1]
         if n == 0 or len(itri) == 0:
+            self._kept.pop(w, None)
             bounds.append(base)
             return 0
         kern = _tri if threads > 1 else _tri.serial
-        lo = self._scratch("lower", (n, 3))
-        hi = self._scratch("upper", (n, 3))
-        lo, hi = lo[:n], hi[:n]
-        kern.sphere_boxes(xw, h, top, _GUARD, lo, hi)
-        engine = self._engines.get(w)
-        if engine is None:
-            engine = self._engines[w] = SweepAndPrune()
-        engine.n_threads = threads
-        # the engine keeps the triangles' grid while they do not move; its
-        # pairs come sorted by sphere
-        cand = engine.update(lo, hi, tlo, thi)
+        kept = self._kept.get(w)
+        if (kept is not None and kept[0] is geo and len(kept[2]) == n
+                and np.array_equal(kept[1], h) and not _tri.moved_beyond(xw, kept[2], margin)):
+            # every box of this call lies in its box grown by the margin at the
+            # build (and the guard of the boxes covers the rounding): the kept
+            # pairs hold this call's
+            cand = kept[3]
+        else:
+            lo = self._scratch("lower", (n, 3))
+            hi = self._scratch("upper", (n, 3))
+            lo, hi = lo[:n], hi[:n]
+            kern.sphere_boxes(xw, h + margin if margin else h, top, _GUARD, lo, hi)
+            engine = self._engines.get(w)
+            if engine is None:
+                engine = self._engines[w] = SweepAndPrune()
+            engine.n_threads = threads
+            # the engine keeps the triangles' grid while they do not move; its
+            # pairs come sorted by sphere
+            cand = engine.update(lo, hi, tlo, thi)
+            self._rebuilt = True
+            if margin:
+                self._kept[w] = (geo, h.copy(), np.array(xw), cand.copy())
         k = len(cand)
         if k == 0:
             bounds.append(base)

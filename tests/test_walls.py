@@ -804,6 +804,81 @@ class TestIdentity:
 # ----------------------------------------------------------------- files
 
 
+class TestRebuildMargin:
+    """A mesh's broad phase kept within ``rebuild_margin`` gives the contacts of a
+    margin of 0, row for row and bit for bit."""
+
+    @staticmethod
+    def _walk(periodic, n_threads, margin, steps=40, seed=3):
+        rng = np.random.default_rng(seed)
+        L = 5.0
+        v, f = bumpy_mesh(rng, 5)
+        mesh = TriangleMesh(v, f)
+        walls = WallSearch([Plane([0, 0, -1.5], [0, 0, 1]), mesh], identity=True,
+                           n_threads=n_threads, rebuild_margin=margin)
+        cell = Cell.from_dimensions([L, L, 10, 90, 90, 90], pbc=(True, True, False)) \
+            if periodic else None
+        n = 300
+        # (in a periodic cell a sphere wrapped across a face needs the pairs of
+        # other images: a rebuild; these stay clear of the faces, yet within
+        # reach of the images of the triangles across them)
+        lo, hi = (0.45, 4.55) if periodic else (-0.5, 5.5)
+        x = np.column_stack((rng.uniform(lo, hi, n), rng.uniform(lo, hi, n),
+                             rng.uniform(-0.6, 0.8, n)))
+        r = rng.uniform(0.1, 0.45, n)
+        ids = rng.permutation(n) + 100
+        out = []
+        for step in range(steps):
+            x += rng.normal(0.0, 0.01, x.shape)
+            if step == 25:  # radii change: the kept pairs cannot serve
+                r = r * 1.01
+            if step == 30:  # a sphere jumps farther than any margin
+                x[7] += [0.0, 0.0, 0.9]
+            c = walls.update(x, r, cell, ids=ids)
+            out.append((_rows(c), walls.previous_rows.tolist(), walls.ended_rows.tolist(),
+                        walls.stats["rebuilt"]))
+        return out
+
+    @pytest.mark.parametrize("n_threads", [1, 2])
+    @pytest.mark.parametrize("periodic", [False, True])
+    def test_kept_pairs_give_the_contacts_of_no_margin(self, periodic, n_threads):
+        plain = self._walk(periodic, n_threads, 0.0)
+        kept = self._walk(periodic, n_threads, 0.15)
+        for step, (a, b) in enumerate(zip(plain, kept, strict=True)):
+            assert a[:3] == b[:3], step
+        assert all(a[3] for a in plain)  # a margin of 0 builds every call
+        rebuilt = [b[3] for b in kept]
+        assert rebuilt[0] and rebuilt[25] and rebuilt[30]
+        assert rebuilt.count(False) >= 20  # the kept pairs served most calls
+        rows = [row for a in plain for row in a[0]]
+        assert {row[3] for row in rows if row[1] == 1} == {0, 1, 2}  # faces, edges, vertices
+
+    def test_moving_vertices_build_every_call(self):
+        rng = np.random.default_rng(8)
+        v, f = bumpy_mesh(rng, 3)
+        x = np.column_stack((rng.uniform(0, 3, 50), rng.uniform(0, 3, 50),
+                             rng.uniform(-0.3, 0.5, 50)))
+        plain = WallSearch([TriangleMesh(v, f)])
+        kept = WallSearch([TriangleMesh(v, f)], rebuild_margin=0.5)
+        for step in range(4):
+            moved = v + [0.0, 0.0, 0.05 * step]
+            a = plain.update(x, 0.3, vertices=moved)
+            b = kept.update(x, 0.3, vertices=moved)
+            assert _rows(a) == _rows(b)
+            assert kept.stats["rebuilt"]
+
+    def test_planes_only_have_no_broad_phase(self):
+        walls = WallSearch([Plane([0, 0, 0], [0, 0, 1])], rebuild_margin=0.2)
+        walls.update([[0.0, 0.0, 0.1]], 0.2)
+        assert walls.stats["rebuilt"] is False
+
+    def test_margin_argument(self):
+        with pytest.raises(ValueError, match="rebuild_margin must be non-negative"):
+            WallSearch([Plane([0, 0, 0], [0, 0, 1])], rebuild_margin=-0.1)
+        with pytest.raises(ValueError, match="rebuild_margin must be finite"):
+            WallSearch([Plane([0, 0, 0], [0, 0, 1])], rebuild_margin=float("inf"))
+
+
 class TestRead:
     @pytest.mark.parametrize("name, kwargs", [("floor.stl", {"binary": True}),
                                               ("floor-ascii.stl", {"binary": False}),

@@ -181,6 +181,17 @@ def sphere_boxes(x, h, top, guard, lower, upper):
             upper[s, ax] = x[s, ax] + pad
 
 
+@jit
+def moved_beyond(x, x_built, margin):
+    """Whether a coordinate of ``x`` differs from ``x_built`` by more than ``margin``
+    (rows alike; NaN counts as moved)."""
+    for s in range(x.shape[0]):
+        for ax in range(3):
+            if not abs(x[s, ax] - x_built[s, ax]) <= margin:
+                return True
+    return False
+
+
 @ijit
 def _feature(region, t, corners, face_edges):
     """Kind (0 face, 1 edge, 2 vertex) and id (triangle, edge, vertex)."""
