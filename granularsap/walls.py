@@ -927,7 +927,8 @@ class WallSearch:
                  self._scratch("hkind", (slots,), np.int64),
                  self._scratch("hbest", (slots,), np.int64))
         groups, total = kern.mesh_select(cand, xw, h, _TIE, itri, rows, shifts, corners,
-                                         face_edges, edges, dist, point, *ints, *table)
+                                         face_edges, edges, tlo, thi, top, _GUARD, dist, point,
+                                         *ints, *table)
         if base + total > len(self._st_i):
             self._grow_stage(base + total, base)
         _, elem, kind, _, f0, f1, gstart, offsets, order = ints

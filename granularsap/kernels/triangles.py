@@ -247,15 +247,18 @@ def _probe(table, start, mask, bits, key):
 
 @pjit
 def mesh_select(cand, x, h, tie, tri, rows, shifts, corners, face_edges, edges,
-                dist, point, region, elem, kind, fid, f0, f1, gstart, offsets, order,
-                hkey, hdist, hkind, hbest):
+                tlo, thi, top, guard, dist, point, region, elem, kind, fid, f0, f1, gstart,
+                offsets, order, hkey, hdist, hkind, hbest):
     """Narrow phase and de-duplication of one mesh, per sphere.
 
     ``cand`` (k, 2): (sphere, image triangle) pairs sorted by sphere (the
     cross-set query's order).  Per candidate it writes the closest point
     (``dist``, ``point``, ``region``), its triangle ``elem`` and feature
     (``kind``: 0 face, 1 edge, 2 vertex, -1 out of reach or dropped; ``fid``,
-    ``f0``, ``f1``); per sphere (a group of rows) the kept rows, sorted by
+    ``f0``, ``f1``), unless the sphere's box (``sphere_boxes``'s, from ``top``
+    and ``guard``) misses the triangle's (``tlo``, ``thi``): then only ``kind``
+    is written, -1 (the candidates of a kept broad phase, grown by its margin,
+    are mostly such pairs); per sphere (a group of rows) the kept rows, sorted by
     element, kind, feature and image shift, into ``order`` from the group's
     first row.  Returns the number of groups ``g`` (``gstart[:g + 1]`` their
     rows) and of kept contacts (``offsets[:g + 1]`` their exclusive prefix
@@ -295,9 +298,16 @@ def mesh_select(cand, x, h, tie, tri, rows, shifts, corners, face_edges, edges,
             px, py, pz = x[s, 0], x[s, 1], x[s, 2]
             reach = h[s]
             tol = tie * reach
+            # the box of sphere_boxes (its scale bounded below by this sphere's)
+            pad = reach + guard * (abs(reach) + max(top, max(abs(px), max(abs(py), abs(pz)))))
             hits = 0
             for i in range(a, b):
                 m = cand[i, 1]
+                if ((px + pad < tlo[m, 0]) | (px - pad > thi[m, 0])
+                        | (py + pad < tlo[m, 1]) | (py - pad > thi[m, 1])
+                        | (pz + pad < tlo[m, 2]) | (pz - pad > thi[m, 2])):
+                    kind[i] = -1  # every point of the triangle is out of reach
+                    continue
                 qx, qy, qz, reg = closest_point(px, py, pz,
                                                 tri[m, 0, 0], tri[m, 0, 1], tri[m, 0, 2],
                                                 tri[m, 1, 0], tri[m, 1, 1], tri[m, 1, 2],
