@@ -34,7 +34,6 @@ concurrent calls from several threads.  :data:`THREADING_LAYER_SET` records what
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import functools
 import os
@@ -203,22 +202,61 @@ def max_threads() -> int:
     return numba.config.NUMBA_NUM_THREADS
 
 
-@contextlib.contextmanager
-def num_threads(n_threads):
+def _pool():
+    """numba's parallel module once its thread pool runs and its C entry points of
+    the thread count are there, else None."""
+    par = sys.modules.get("numba.np.ufunc.parallel")
+    if (par is not None and getattr(par, "_is_initialized", False)
+            and callable(getattr(par, "_get_num_threads", None))
+            and callable(getattr(par, "_set_num_threads", None))):
+        return par
+    return None
+
+
+def get_threads() -> int:
+    """``numba.get_num_threads()``: the calling thread's count.  numba's function
+    takes the pool's launch locks on every call (a process lock among them, about
+    0.6 us); once the pool runs, the C function it then calls is read directly."""
+    par = _pool()
+    if par is not None:
+        n = par._get_num_threads()
+        if n > 0:
+            return n
+    return numba.get_num_threads()
+
+
+def _set_threads(n):
+    par = _pool()
+    if par is not None:  # (n validated: 1 <= n <= max_threads())
+        par._set_num_threads(n)
+    else:
+        numba.set_num_threads(n)
+
+
+class num_threads:
     """Run a block with ``n_threads`` numba threads, restoring the old value after.
 
     ``None`` keeps numba's current setting.  Yields the number of threads in use.
     The argument must already be validated (see ``_validate.check_n_threads``).
+    (A class, not a generator: entered several times a step by a time loop.)
     """
-    if n_threads is None:
-        yield numba.get_num_threads()
-        return
-    old = numba.get_num_threads()
-    if old == n_threads:  # nothing to set or restore (a small frame's every call)
-        yield n_threads
-        return
-    numba.set_num_threads(n_threads)
-    try:
-        yield n_threads
-    finally:
-        numba.set_num_threads(old)
+
+    __slots__ = ("_n", "_old")
+
+    def __init__(self, n_threads):
+        self._n = n_threads
+        self._old = None
+
+    def __enter__(self):
+        cur = get_threads()
+        if self._n is None or self._n == cur:  # nothing to set or restore
+            return cur
+        _set_threads(self._n)
+        self._old = cur
+        return self._n
+
+    def __exit__(self, *exc):
+        if self._old is not None:
+            _set_threads(self._old)
+            self._old = None
+        return False

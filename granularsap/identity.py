@@ -23,10 +23,9 @@ answer on any thread count.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
-from ._numba import num_threads
+from ._numba import get_threads, num_threads
 from ._validate import check_n_threads
 from .kernels import identity as kern
 
@@ -93,7 +92,7 @@ class _Rows:
 
     def _threads(self, rows):
         """(kernels, chunks) for ``rows`` rows under the thread count in force."""
-        t = numba.get_num_threads()
+        t = get_threads()
         if t == 1 or rows < _PARALLEL_MIN:
             return kern.serial, 1
         return kern, t

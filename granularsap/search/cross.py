@@ -8,11 +8,10 @@ from __future__ import annotations
 import math
 import time
 
-import numba
 import numpy as np
 
 from .. import _memory
-from .._numba import num_threads
+from .._numba import get_threads, num_threads
 from ..kernels import grid, query
 from . import plan
 from .frame import (
@@ -108,7 +107,7 @@ class CrossQuery:
         prev = np.arange(m, dtype=np.int64) if fresh else self.perm
         start = np.empty(ncol + 1, np.int64)
         perm = self.buffer("perm_spare", (m,), np.int64)
-        segments = 1 if kern is grid.serial else min(numba.get_num_threads(),
+        segments = 1 if kern is grid.serial else min(get_threads(),
                                                        max(1, m // (4 * ncol + 1)))
         kern.counting_sort(col, prev, ncol, start, perm, np.empty((segments, ncol), np.int64))
         kern.sort_columns(start, ncol, perm, t, 2, fresh)

@@ -19,11 +19,10 @@ from __future__ import annotations
 import math
 import time
 
-import numba
 import numpy as np
 
 from .. import _memory
-from .._numba import num_threads
+from .._numba import get_threads, num_threads
 from .._validate import as_scalar, check_n_threads
 from ..cell import Cell
 from ..geometry import FrameCell
@@ -528,7 +527,7 @@ class SearchEngine:
         prev = np.arange(n, dtype=np.int64) if fresh else self._perm
         start = np.empty(ncol + 1, np.int64)
         perm = self._perm_buf
-        segments = 1 if self._kern is grid.serial else min(numba.get_num_threads(),
+        segments = 1 if self._kern is grid.serial else min(get_threads(),
                                                              max(1, n // (4 * ncol + 1)))
         hist = self._hist
         if hist.shape != (segments, ncol):
