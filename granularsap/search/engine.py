@@ -634,16 +634,7 @@ class SearchEngine:
         self._labels = None if labels is None else labels.copy()
         use_label = labels is not None
         strict = not self.include_cutoff
-        if scan is None:
-            uniform, x2 = exact_bound(rad, skin, strict)
-        else:
-            uniform, x2 = scan[3] == scan[4], 0.0
-            if uniform:
-                thr = (float(rad[0]) + float(rad[0]) + skin, strict)
-                memo = self._square_memo
-                if memo[0] != thr:
-                    memo = self._square_memo = (thr, square_bound(*thr))
-                x2 = memo[1]
+        uniform, x2 = self._exact_bound(rad, skin, strict)
         r_small = None if uniform else self._small_levels(positions, rad, rmax, skin, cs, n)
         fresh = self._perm is None or len(self._perm) != n
         prev = self._perm_buf if fresh else self._perm
@@ -708,6 +699,21 @@ class SearchEngine:
         times["count"] = t1 - t0
         times["fill"] = time.perf_counter() - t1
         return int(tested)
+
+    def _exact_bound(self, rad, skin, strict):
+        """``frame.exact_bound`` of ``rad``, which are the frame's radii: uniform from
+        the frame's scan (its smallest and largest radius), the squared bound kept
+        while the threshold is the same."""
+        scan = self._scan_now
+        if scan is None:
+            return exact_bound(rad, skin, strict)
+        if scan[3] != scan[4]:
+            return False, 0.0
+        thr = (float(rad[0]) + float(rad[0]) + skin, strict)
+        memo = self._square_memo
+        if memo[0] != thr:
+            memo = self._square_memo = (thr, square_bound(*thr))
+        return True, memo[1]
 
     def _small_levels(self, positions, rad, rmax, skin, cs, n):
         """``level_split`` for a small frame, kept while the radii, the cell and
@@ -802,7 +808,8 @@ class SearchEngine:
             return 0
         strict = not self.include_cutoff
         q = self._computed
-        uniform, x2 = exact_bound(self._rs, skin, strict)
+        # (a Verlet frame has the radii of its build: those of the frame's scan)
+        uniform, x2 = self._exact_bound(self._rs, skin, strict)
         band = Band(*self._band(x2), self._xg, self._perm, self._ks)
         return self._verlet.retest(self._kern, self._ws, self._m, self._rs, skin, cell, diag,
                                    strict, uniform, x2, band, ("d" in q, "D" in q, "S" in q),
