@@ -202,13 +202,20 @@ def max_threads() -> int:
     return numba.config.NUMBA_NUM_THREADS
 
 
+_POOL = []  # numba's parallel module, once _pool found its pool running
+
+
 def _pool():
     """numba's parallel module once its thread pool runs and its C entry points of
-    the thread count are there, else None."""
+    the thread count are there, else None (kept once found: a pool, once up,
+    stays)."""
+    if _POOL:
+        return _POOL[0]
     par = sys.modules.get("numba.np.ufunc.parallel")
     if (par is not None and getattr(par, "_is_initialized", False)
             and callable(getattr(par, "_get_num_threads", None))
             and callable(getattr(par, "_set_num_threads", None))):
+        _POOL.append(par)
         return par
     return None
 
