@@ -37,6 +37,7 @@ _PARALLEL_MIN = 50000
 _PART_SLOTS = 4096
 _NO_SHIFTS = np.zeros((0, 3), np.int64)
 _NO_ROWS = np.zeros(0, np.int64)
+_NO_KEYS = np.zeros((0, 1), np.int64)
 
 
 def as_ids(ids, n, name="ids"):
@@ -291,11 +292,16 @@ class ContactIdentity(_Rows):
                              f"{prev.shape[1]} before, {keys.shape[1]} now")
         k = len(keys)
         k_prev = 0 if prev is None else len(prev)
+        size = 1 << max(4, int(2 * max(k, 1) - 1).bit_length())
+        shift = 64 - (size.bit_length() - 1)
+        slots = np.empty(size, np.int64)
+        if k < _PARALLEL_MIN or self.n_threads == 1:
+            # one chunk (as ``_threads`` decides): one serial kernel, no thread setting
+            self._update_one(keys, shift, slots, k, k_prev)
+            self._prev_keys, self._slots, self._shift = keys, slots, shift
+            return self.previous_rows
         with num_threads(self.n_threads):
             kernels, chunks = self._threads(k)
-            size = 1 << max(4, int(2 * max(k, 1) - 1).bit_length())
-            shift = 64 - (size.bit_length() - 1)
-            slots = np.empty(size, np.int64)
             first, second = kern.key_table(keys, shift, slots)
             if first >= 0:
                 raise ValueError(f"keys must be unique rows: rows {first} and {second} are "
@@ -313,6 +319,29 @@ class ContactIdentity(_Rows):
             self._publish(k, k_prev, fill_rows, matched, chunks, kernels)
         self._prev_keys, self._slots, self._shift = keys, slots, shift
         return self.previous_rows
+
+    def _update_one(self, keys, shift, slots, k, k_prev):
+        """``update`` of one chunk in one kernel call (``match_keys_one``): the maps
+        in the buffer set the previous call did not use, published as
+        ``_publish`` does once the keys are found unique."""
+        s = self._sets[1 - self._set]
+        s["prev"] = _grow(s.get("prev"), k, np.int64)
+        prev_rows = s["prev"][:k]
+        padded = k_prev + (-k_prev) % 8
+        s["matched"] = _grow(s.get("matched"), padded, np.uint8)
+        flags = s["matched"][:padded]  # (zeroed and padded by the kernel)
+        s["ended"] = _grow(s.get("ended"), k_prev, np.int64)
+        prev_keys = self._prev_keys if self._prev_keys is not None else _NO_KEYS
+        first, second, ended = kern.match_keys_one(keys, shift, slots, prev_keys, self._shift,
+                                                   self._slots, k_prev, prev_rows, flags,
+                                                   s["ended"])
+        if first >= 0:
+            raise ValueError(f"keys must be unique rows: rows {first} and {second} are "
+                             f"both {keys[second].tolist()}")
+        self._set = 1 - self._set
+        self.previous_rows, self.ended_rows = prev_rows, s["ended"][:ended]
+        self._k_prev, self._k = k_prev, k
+        self._new = None
 
 
 class PairIdentity(_Rows):

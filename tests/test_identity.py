@@ -419,12 +419,19 @@ def test_contact_identity_matches_a_dict(seed, k1, k2, width):
     pool = np.unique(rng.integers(-3, 4, (90, width)), axis=0)
     a = pool[rng.permutation(len(pool))[:k1]]
     b = pool[rng.permutation(len(pool))[:k2]]
-    track = ContactIdentity()
-    track.update(a)
-    got = track.update(b)
     want, ended = oracle_rows([tuple(r) for r in a.tolist()], [tuple(r) for r in b.tolist()])
-    np.testing.assert_array_equal(got, want)
-    np.testing.assert_array_equal(track.ended_rows, ended)
+    # a small call's one kernel, and the chunked kernels of a large one
+    old = identity_module._PARALLEL_MIN
+    for parallel_min in (old, 0):
+        identity_module._PARALLEL_MIN = parallel_min
+        try:
+            track = ContactIdentity()
+            track.update(a)
+            got = track.update(b)
+        finally:
+            identity_module._PARALLEL_MIN = old
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(track.ended_rows, ended)
 
 
 # ---------------------------------------------------------------- carry

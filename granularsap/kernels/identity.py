@@ -601,6 +601,38 @@ def match_keys(keys, prev_keys, shift, slots, bounds, prev_rows, matched):
                 s = (s + 1) & mask
 
 
+@jit
+def match_keys_one(keys, shift, slots, prev_keys, prev_shift, prev_slots, k_prev, prev_rows,
+                   flags, ended):
+    """A small call of ``ContactIdentity`` in one serial kernel: the table of this
+    call's keys (``key_table`` into ``slots``), ``prev_rows`` through the previous
+    call's table (``match_keys`` on one chunk; ``flags``, the ``k_prev`` previous
+    rows padded to whole words, zeroed and the padding set as ``unmatched_words``
+    reads it) and the previous rows not found into ``ended`` (``unmatched_into``).
+    Returns ``(first, second, ended count)``: the rows of a repeated key, ``(-1,
+    -1)`` when the keys are unique (only then the rest is written)."""
+    first, second = key_table(keys, shift, slots)
+    if first >= 0:
+        return first, second, np.int64(0)
+    for q in range(flags.shape[0]):
+        flags[q] = 0 if q < k_prev else 1
+    mask = np.int64(prev_slots.shape[0] - 1)
+    ushift = np.uint64(prev_shift)
+    for r in range(keys.shape[0]):
+        prev_rows[r] = -1
+        if prev_keys.shape[0] == 0 or prev_slots.shape[0] == 0:
+            continue
+        s = _key_slot(keys, r, mask, ushift)
+        while prev_slots[s] >= 0:
+            q = prev_slots[s]
+            if _rows_equal(keys, r, prev_keys, q):
+                prev_rows[r] = q
+                flags[q] = 1
+                break
+            s = (s + 1) & mask
+    return np.int64(-1), np.int64(-1), unmatched_into(flags, ended)
+
+
 #: the parallel kernels of this module, compiled serially (same names)
 serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in (
     "match_in_step", "match_in_step_ids", "match_in_step_shifts",
