@@ -834,6 +834,9 @@ class TestRebuildMargin:
                 r = r * 1.01
             if step == 30:  # a sphere jumps farther than any margin
                 x[7] += [0.0, 0.0, 0.9]
+            if step == 35:  # the rows re-ordered (a script sorting its spheres in space)
+                order = np.argsort(x[:, 0], kind="stable")
+                x, r, ids = x[order], r[order], ids[order]
             c = walls.update(x, r, cell, ids=ids)
             out.append((_rows(c), walls.previous_rows.tolist(), walls.ended_rows.tolist(),
                         walls.stats["rebuilt"]))
@@ -848,7 +851,7 @@ class TestRebuildMargin:
             assert a[:3] == b[:3], step
         assert all(a[3] for a in plain)  # a margin of 0 builds every call
         rebuilt = [b[3] for b in kept]
-        assert rebuilt[0] and rebuilt[25] and rebuilt[30]
+        assert rebuilt[0] and rebuilt[25] and rebuilt[30] and rebuilt[35]
         assert rebuilt.count(False) >= 20  # the kept pairs served most calls
         rows = [row for a in plain for row in a[0]]
         assert {row[3] for row in rows if row[1] == 1} == {0, 1, 2}  # faces, edges, vertices
