@@ -64,6 +64,13 @@ def as_ids(ids, n, name="ids"):
     return np.ascontiguousarray(arr, dtype=np.int64)
 
 
+def _repeated_keys(keys, first, second):
+    """The error of ``ContactIdentity.update`` for rows ``first`` and ``second``
+    holding the same keys."""
+    return ValueError(f"keys must be unique rows: rows {first} and {second} are both "
+                      f"{keys[second].tolist()}")
+
+
 def _bounds(k, chunks):
     """``chunks + 1`` increasing row bounds from 0 to ``k``."""
     if chunks == 1:
@@ -304,8 +311,7 @@ class ContactIdentity(_Rows):
             kernels, chunks = self._threads(k)
             first, second = kern.key_table(keys, shift, slots)
             if first >= 0:
-                raise ValueError(f"keys must be unique rows: rows {first} and {second} are "
-                                 f"both {keys[second].tolist()}")
+                raise _repeated_keys(keys, first, second)
             matched = self._matched(k_prev)
 
             def fill_rows(out, _):
@@ -336,8 +342,7 @@ class ContactIdentity(_Rows):
                                                    self._slots, k_prev, prev_rows, flags,
                                                    s["ended"])
         if first >= 0:
-            raise ValueError(f"keys must be unique rows: rows {first} and {second} are "
-                             f"both {keys[second].tolist()}")
+            raise _repeated_keys(keys, first, second)
         self._set = 1 - self._set
         self.previous_rows, self.ended_rows = prev_rows, s["ended"][:ended]
         self._k_prev, self._k = k_prev, k

@@ -563,6 +563,23 @@ def _rows_equal(a, r, b, q):
     return True
 
 
+@ijit
+def _find_key(keys, r, prev_keys, shift, slots):
+    """The row of ``prev_keys`` equal to ``keys[r]``, through its table ``slots``
+    (``key_table``'s, ``shift`` its hash shift), or -1 (also without a table or
+    previous keys)."""
+    if slots.shape[0] == 0 or prev_keys.shape[0] == 0:
+        return np.int64(-1)
+    mask = np.int64(slots.shape[0] - 1)
+    s = _key_slot(keys, r, mask, np.uint64(shift))
+    while slots[s] >= 0:
+        q = slots[s]
+        if _rows_equal(keys, r, prev_keys, q):
+            return q
+        s = (s + 1) & mask
+    return np.int64(-1)
+
+
 @jit
 def key_table(keys, shift, slots):
     """Hash table of the rows of ``keys``: ``slots[s]`` a row or -1.  Returns
@@ -584,21 +601,12 @@ def key_table(keys, shift, slots):
 def match_keys(keys, prev_keys, shift, slots, bounds, prev_rows, matched):
     """``prev_rows[r]``: the row of ``prev_keys`` equal to ``keys[r]`` (through its
     table ``slots``) or -1; ``matched[q] = 1`` for every row found."""
-    mask = np.int64(slots.shape[0] - 1)
-    ushift = np.uint64(shift)
     for c in numba.prange(bounds.shape[0] - 1):
         for r in range(bounds[c], bounds[c + 1]):
-            prev_rows[r] = -1
-            if slots.shape[0] == 0:
-                continue
-            s = _key_slot(keys, r, mask, ushift)
-            while slots[s] >= 0:
-                q = slots[s]
-                if _rows_equal(keys, r, prev_keys, q):
-                    prev_rows[r] = q
-                    matched[q] = 1
-                    break
-                s = (s + 1) & mask
+            q = _find_key(keys, r, prev_keys, shift, slots)
+            prev_rows[r] = q
+            if q >= 0:
+                matched[q] = 1
 
 
 @jit
@@ -616,20 +624,11 @@ def match_keys_one(keys, shift, slots, prev_keys, prev_shift, prev_slots, k_prev
         return first, second, np.int64(0)
     for q in range(flags.shape[0]):
         flags[q] = 0 if q < k_prev else 1
-    mask = np.int64(prev_slots.shape[0] - 1)
-    ushift = np.uint64(prev_shift)
     for r in range(keys.shape[0]):
-        prev_rows[r] = -1
-        if prev_keys.shape[0] == 0 or prev_slots.shape[0] == 0:
-            continue
-        s = _key_slot(keys, r, mask, ushift)
-        while prev_slots[s] >= 0:
-            q = prev_slots[s]
-            if _rows_equal(keys, r, prev_keys, q):
-                prev_rows[r] = q
-                flags[q] = 1
-                break
-            s = (s + 1) & mask
+        q = _find_key(keys, r, prev_keys, prev_shift, prev_slots)
+        prev_rows[r] = q
+        if q >= 0:
+            flags[q] = 1
     return np.int64(-1), np.int64(-1), unmatched_into(flags, ended)
 
 
