@@ -710,7 +710,7 @@ class WallSearch:
         # one pass merges the parts into the outputs
         bounds = [0]
         tested = 0
-        self._rebuilt = False
+        rebuilt = False
         planes = [w for w, wall in enumerate(self.walls) if isinstance(wall, Plane)]
         if planes:
             pts, nrm = self._plane_arrays(planes, cell)
@@ -723,7 +723,10 @@ class WallSearch:
             tested += n * len(planes)
         for w, wall in enumerate(self.walls):
             if isinstance(wall, TriangleMesh):
-                tested += self._mesh(w, wall, verts[w], xw, h, cell, delta, threads, bounds)
+                part, built = self._mesh(w, wall, verts[w], xw, h, cell, delta, threads,
+                                         bounds)
+                tested += part
+                rebuilt |= built
         k = bounds[-1]
         self._flip ^= 1
         out = self._out[self._flip]
@@ -741,7 +744,7 @@ class WallSearch:
                          keys if self.identity else _NO_KEYS)
         result = WallContacts(*(a[:k] for a in out))
         self.stats = {"spheres": n, "candidates_tested": int(tested), "contacts": k,
-                      "rebuilt": self._rebuilt}
+                      "rebuilt": rebuilt}
         if self.identity:
             self._tracker.update(keys[:k])
         return result
@@ -873,8 +876,9 @@ class WallSearch:
 
     def _mesh(self, w, mesh, verts, xw, h, cell, delta, threads, bounds):
         """Staging rows of one mesh's contacts (appended; ``bounds`` gets the
-        part's end); returns the number of candidates tested.  ``threads``: the
-        thread count ``update`` put in force."""
+        part's end); returns the number of candidates tested and whether the
+        broad phase was built (not kept).  ``threads``: the thread count
+        ``update`` put in force."""
         n = len(xw)
         if cell is not None:
             corners, edges, face_edges = mesh._periodic_adjacency(verts, cell)
@@ -888,7 +892,7 @@ class WallSearch:
         if n == 0 or len(itri) == 0:
             self._kept.pop(w, None)
             bounds.append(base)
-            return 0
+            return 0, False
         kern = _tri if threads > 1 else _tri.serial
         kept = self._kept.get(w)
         if (kept is not None and kept[0] is geo and len(kept[2]) == n
@@ -897,6 +901,7 @@ class WallSearch:
             # build (and the guard of the boxes covers the rounding): the kept
             # pairs hold this call's
             cand = kept[3]
+            built = False
         else:
             lo = self._scratch("lower", (n, 3))
             hi = self._scratch("upper", (n, 3))
@@ -909,13 +914,13 @@ class WallSearch:
             # the engine keeps the triangles' grid while they do not move; its
             # pairs come sorted by sphere
             cand = engine.update(lo, hi, tlo, thi)
-            self._rebuilt = True
+            built = True
             if margin:
                 self._kept[w] = (geo, h.copy(), np.array(xw), cand.copy())
         k = len(cand)
         if k == 0:
             bounds.append(base)
-            return 0
+            return 0, built
         dist = self._scratch("dist", (k,))
         point = self._scratch("point", (k, 3))
         ints = [self._scratch(name, (k + 1,), np.int64)
@@ -935,4 +940,4 @@ class WallSearch:
         kern.mesh_fill(cand, xw, itri, dist, point, elem, kind, f0, f1, gstart, offsets,
                        order, groups, w, delta, self._st_i, self._st_f, base)
         bounds.append(base + total)
-        return k
+        return k, built
