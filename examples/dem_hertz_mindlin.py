@@ -12,6 +12,18 @@ gather per step::
     pairs, d, D = search.update(x, radii, ids=ids)
     spring = search.carry(spring)           # last step's springs, 0 for new contacts
 
+With ``--neighbor-list`` the grains go through a ``ContactList`` instead,
+as LAMMPS keeps them: the pairs within the contact distance plus the margin,
+rebuilt only when a grain has moved more than half the margin, the springs
+moved to the new rows at a rebuild only; the contact law computes every
+listed pair's separation and leaves the pairs that do not touch (their
+springs reset to 0)::
+
+    listed, shifts = contacts.update(x, radii, ids=ids)
+    history = contacts.carry(history)      # as it was, or moved at a rebuild
+    d, D = contacts.separations(x)
+    touch = d <= radii[listed[:, 0]] + radii[listed[:, 1]]
+
 The contact law is that of LAMMPS's ``pair_style granular hertz/material E
 damping nu tangential mindlin NULL 1.0 mu damping viscoelastic
 limit_damping`` (and ``fix wall/gran granular`` with the same coefficients
@@ -49,7 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from granularsap import ContactSearch, Plane, TriangleMesh, WallSearch
+from granularsap import ContactList, ContactSearch, Plane, TriangleMesh, WallSearch
 
 GRAVITY = np.array([0.0, 0.0, -10.0])
 R_MIN, R_MAX = 0.5, 1.0       # radii drawn uniformly in [R_MIN, R_MAX]
@@ -173,10 +185,17 @@ class Pour:
     their tangential springs, row for row), ``wall_contacts`` and
     ``wall_spring``, and ``search_seconds``, the time of the two searches and
     the two history gathers (``wall_seconds`` of it for the walls).
+
+    With ``neighbor_list=True`` the grains go through ``contacts``, a
+    ``ContactList`` (LAMMPS's neighbour list with its skin), whose
+    ``history`` holds a spring per listed pair (0 for those not touching);
+    ``separation_seconds`` is the time of its separations (the contact law's
+    part).
     """
 
     def __init__(self, positions, velocities, radii, width, floor, *, material=None,
-                 dt=5e-4, rebuild_margin=0.2, n_threads=1, ids=None, omegas=None):
+                 dt=5e-4, rebuild_margin=0.2, n_threads=1, ids=None, omegas=None,
+                 neighbor_list=False):
         self.material = material or Material()
         self.dt = float(dt)
         self.positions = np.array(positions, dtype=np.float64)
@@ -190,8 +209,12 @@ class Pour:
                  Plane(point=[width, 0, 0], normal=[-1, 0, 0]),     # x = width, facing -x
                  Plane(point=[0, 0, 0], normal=[0, 1, 0]),
                  Plane(point=[0, width, 0], normal=[0, -1, 0])]
-        self.search = ContactSearch(rebuild_margin=rebuild_margin, quantities="PdD",
-                                    identity=True, n_threads=n_threads)
+        self.search = None if neighbor_list else ContactSearch(
+            rebuild_margin=rebuild_margin, quantities="PdD", identity=True, n_threads=n_threads)
+        self.contacts = (ContactList(rebuild_margin=rebuild_margin, n_threads=n_threads)
+                         if neighbor_list else None)
+        self.history = np.empty((0, 3))
+        self.separation_seconds = 0.0
         self.walls = WallSearch([*sides, floor], identity=True, n_threads=n_threads,
                                 rebuild_margin=rebuild_margin)
         self.pairs = np.empty((0, 2), np.int64)
@@ -204,13 +227,24 @@ class Pour:
         """Search, carry the springs, and return (force, torque) on every grain (n, 3)."""
         x, v, w, r, m = self.positions, self.velocities, self.omegas, self.radii, self.mass
         t0 = time.perf_counter()
-        pairs, dist, vec = self.search.update(x, r, ids=self.ids)
-        spring = self.search.carry(self.spring)
+        if self.contacts is None:
+            pairs, dist, vec = self.search.update(x, r, ids=self.ids)
+            spring = self.search.carry(self.spring)
+        else:
+            listed, _ = self.contacts.update(x, r, ids=self.ids)
+            history = self.contacts.carry(self.history)
         t1 = time.perf_counter()
         c = self.walls.update(x, r, ids=self.ids)
         wall_spring = self.walls.carry(self.wall_spring)
         self.search_seconds = time.perf_counter() - t0
         self.wall_seconds = self.search_seconds - (t1 - t0)
+        if self.contacts is not None:
+            # the listed pairs that touch are the contacts (as pair granular sees them)
+            t2 = time.perf_counter()
+            dist, vec = self.contacts.separations(x)
+            self.separation_seconds = time.perf_counter() - t2
+            touch = dist <= r[listed[:, 0]] + r[listed[:, 1]]
+            pairs, dist, vec, spring = listed[touch], dist[touch], vec[touch], history[touch]
 
         force = m[:, None] * GRAVITY
         torque = np.zeros_like(x)
@@ -241,6 +275,9 @@ class Pour:
         _add(force, g, f)
         _add(torque, g, -arm[:, None] * np.cross(c.normal, f_t))
         self.pairs, self.wall_contacts = pairs, c
+        if self.contacts is not None:  # the springs of listed pairs apart are reset
+            self.history = np.zeros((len(listed), 3))
+            self.history[touch] = self.spring
         return force, torque
 
     def kick(self):
@@ -336,6 +373,9 @@ def main(argv=None):
     parser.add_argument("--dt", type=float, default=5e-4, help="time step")
     parser.add_argument("--rebuild-margin", type=float, default=0.2,
                         help="Verlet margin of the grain search (LAMMPS's neighbor skin)")
+    parser.add_argument("--neighbor-list", action="store_true",
+                        help="grains through a ContactList (LAMMPS's neighbour list: history "
+                             "moved at its rebuilds only) instead of a ContactSearch")
     parser.add_argument("--sort-every", type=int, default=500,
                         help="re-order the grains spatially every this many steps (0: never)")
     parser.add_argument("--floor", default=None,
@@ -347,7 +387,8 @@ def main(argv=None):
 
     pos, vel, radii, width = initial_column(args.n, args.seed)
     pour = Pour(pos, vel, radii, width, floor_mesh(width, args.floor), dt=args.dt,
-                rebuild_margin=args.rebuild_margin, n_threads=args.threads)
+                rebuild_margin=args.rebuild_margin, n_threads=args.threads,
+                neighbor_list=args.neighbor_list)
     print(f"{args.n} grains, radii {R_MIN}-{R_MAX}, column {width:.1f} wide, dt {args.dt:g}, "
           f"{args.steps} steps, {args.threads} thread(s)")
     cost = []

@@ -8,12 +8,14 @@ parallel bi-dimensional Sweep and Prune of Capannini & Larsson.
 from ._version import __version__
 from .boxes import SweepAndPrune, box_overlaps
 from .cell import Cell
+from .contact_list import ContactList
 from .particles import clump_contacts, neighbor_pairs, sphere_contacts
 from .search import ContactSearch, NeighborSearch
 from .walls import Plane, TriangleMesh, WallContacts, WallSearch
 
 __all__ = [
     "Cell",
+    "ContactList",
     "ContactSearch",
     "NeighborSearch",
     "Plane",

@@ -36,7 +36,7 @@ GROUPS = {
                 "neighbor_pairs, clump_contacts",
     "search": "NeighborSearch and ContactSearch beyond those: Verlet lists (rebuild_margin), "
               "vectors and shifts, layout='csr', periodic_images='all', identity=True "
-              "(and ContactIdentity), cross-set queries (query)",
+              "(and ContactIdentity), cross-set queries (query), ContactList",
     "boxes": "box_overlaps and SweepAndPrune",
     "dropins": "granularsap.mda (capped_distance, self_capped_distance, FastNS, Contacts) "
                "and granularsap.ase (neighbor_list, NeighborList)",
@@ -276,6 +276,24 @@ def _warm_search():
                                           n_threads=nt).update(pos, radii, box)
         _warm_identity(pos, radii, clumps, boxes, nt, rng)
         _warm_queries(pos, radii, nt)
+        _warm_contact_list(pos, radii, boxes, nt, rng)
+
+
+def _warm_contact_list(pos, radii, boxes, nt, rng):
+    """ContactList: kept and rebuilt, its separations serial and (from 32,768 listed
+    pairs on) parallel."""
+    import numpy as np
+
+    import granularsap
+
+    big = rng.uniform(0.0, 10.0, (20_000, 3))
+    for x, r, box in [(pos, radii, b) for b in boxes] + [(big, 0.15, [10, 10, 10, 90, 90, 90])]:
+        cl = granularsap.ContactList(rebuild_margin=0.2, n_threads=nt)
+        ids = np.arange(len(x)) + 1
+        for step in (0.0, 0.01, 0.5):
+            y = x + rng.normal(0.0, step, x.shape) if step else x
+            cl.update(y, r, box, ids=ids)
+            cl.separations(y)
 
 
 def _warm_identity(pos, radii, clumps, boxes, nt, rng):

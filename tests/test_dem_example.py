@@ -188,7 +188,7 @@ def reference_forces(state, springs, wall_springs, planes, triangles, mat, dt, g
 # ------------------------------------------------------------------------ the test
 
 
-def _small_pour(ex, n, seed, n_threads):
+def _small_pour(ex, n, seed, n_threads, neighbor_list=False):
     """``n`` grains in a narrow column, shaken hard: many contacts begin, end and re-form."""
     rng = np.random.default_rng(seed)
     pos, _, radii, width = ex.initial_column(n, seed)
@@ -196,7 +196,8 @@ def _small_pour(ex, n, seed, n_threads):
     omegas = rng.normal(0.0, 3.0, (n, 3))
     ids = rng.permutation(np.arange(100, 100 + 7 * n, 7))   # LAMMPS-like ids, not rows
     floor = ex.floor_mesh(width)
-    pour = ex.Pour(pos, vel, radii, width, floor, n_threads=n_threads, ids=ids, omegas=omegas)
+    pour = ex.Pour(pos, vel, radii, width, floor, n_threads=n_threads, ids=ids, omegas=omegas,
+                   neighbor_list=neighbor_list)
     return pour, floor, rng
 
 
@@ -204,9 +205,13 @@ def _floor_triangles(floor):
     return np.asarray(floor.vertices, dtype=float)[np.asarray(floor.faces)]
 
 
+@pytest.mark.parametrize("neighbor_list", [False, True], ids=["search", "list"])
 @pytest.mark.parametrize("n_threads", [1, 2])
-def test_springs_equal_pure_python_reference_for_200_steps(ex, n_threads):
-    pour, floor, rng = _small_pour(ex, 50, 2, n_threads)
+def test_springs_equal_pure_python_reference_for_200_steps(ex, n_threads, neighbor_list):
+    """The example's springs equal a pure-Python reference's, its grains through a
+    ContactSearch or (``neighbor_list``) a ContactList kept between rebuilds."""
+    pour, floor, rng = _small_pour(ex, 50, 2, n_threads, neighbor_list)
+    kept = 0
     w = pour.width   # the example's side walls: x = 0, x = w, y = 0, y = w, facing inwards
     planes = [([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]), ([w, 0.0, 0.0], [-1.0, 0.0, 0.0]),
               ([0.0, 0.0, 0.0], [0.0, 1.0, 0.0]), ([0.0, w, 0.0], [0.0, -1.0, 0.0])]
@@ -231,6 +236,7 @@ def test_springs_equal_pure_python_reference_for_200_steps(ex, n_threads):
             state, springs, wall_springs, planes, triangles, pour.material, pour.dt, gravity)
         pour.force, pour.torque = pour.contact_forces()
         pour.kick()
+        kept += neighbor_list and not pour.contacts.rebuilt
 
         # grain contacts: the same keys, the same springs
         ids = pour.ids
@@ -271,6 +277,8 @@ def test_springs_equal_pure_python_reference_for_200_steps(ex, n_threads):
     assert floor_features == {0}   # on a flat floor, the contact kept is the face under it
     # springs that really slid and stuck: some large enough to matter
     assert max(np.abs(v).max() for v in springs.values()) > 1e-4
+    if neighbor_list:  # the list was kept on some steps, and rebuilt on others
+        assert 10 < kept < 190, kept
 
 
 def test_floor_is_the_tiled_rectangle_written_as_stl(ex, tmp_path):

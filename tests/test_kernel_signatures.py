@@ -37,6 +37,7 @@ MODULES = [
     "granularsap.kernels.ghosts",
     "granularsap.kernels.grid",
     "granularsap.kernels.identity",
+    "granularsap.kernels.listed",
     "granularsap.kernels.query",
     "granularsap.kernels.radixsort",
     "granularsap.kernels.succtree",

@@ -144,6 +144,14 @@ WORKLOADS = {
         track = ContactIdentity()
         track.update(np.array([[7, 0, 3], [8, 0, 3]]))
         track.update(np.array([[8, 0, 3], [9, 1, 0]]))
+        ids = np.arange(len(x)) + 1
+        for n in (500, 25_000):                          # serial and parallel separations
+            y = x[:n].copy()
+            cl = granularsap.ContactList(rebuild_margin=0.2)
+            for step in range(3):
+                y += rng.normal(0, 0.05, y.shape)
+                cl.update(y, 0.4, cell, ids=ids[:n])
+                cl.separations(y)
     """,
     "boxes": """
         x = rng.uniform(0, 30, (40_000, 3))        # above the count that takes parallel kernels

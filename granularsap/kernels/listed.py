@@ -1,0 +1,58 @@
+"""Kernels of :class:`granularsap.ContactList`: whether a kept list still holds
+every contact (no sphere moved too far, no radius changed), and the
+separations of the listed pairs on the positions of a step.
+
+The separations follow the engine's one arithmetic (docs/cells.md,
+"Arithmetic"; ``common.separation_between``): for the pair ``(i, j)`` with
+integer image shift ``S``, ``D_c = (x[j, c] - x[i, c]) + S0 cell[0, c] + S1
+cell[1, c] + S2 cell[2, c]`` added in that order and ``d = sqrt(D . D)``, so
+the listed pairs with ``d <= (r_i + r_j) + skin`` are the contacts a
+``ContactSearch`` finds on the same step, with the same ``d`` and ``D`` bit
+for bit.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+
+from .._numba import jit, pjit, serial_twin
+from .common import separation_between
+
+__all__ = ["kept_list_state", "separations", "separations_serial"]
+
+
+@jit
+def kept_list_state(x, x_built, radii, radii_built, limit2):
+    """Why a kept list no longer holds every contact: 0 while every row of ``x``
+    is within ``sqrt(limit2)`` of ``x_built`` (Euclidean) and ``radii`` equal
+    ``radii_built``; 1 when a row moved farther (NaN and inf count as moved);
+    2 when a radius differs.  Rows alike in both."""
+    for s in range(radii.shape[0]):
+        if radii[s] != radii_built[s]:
+            return 2
+    for s in range(x.shape[0]):
+        d0 = x[s, 0] - x_built[s, 0]
+        d1 = x[s, 1] - x_built[s, 1]
+        d2 = x[s, 2] - x_built[s, 2]
+        if not d0 * d0 + d1 * d1 + d2 * d2 <= limit2:
+            return 1
+    return 0
+
+
+@pjit
+def separations(x, pairs, shifts, cell, d, vec):
+    """``d[k]`` and ``vec[k]`` of the listed pair ``pairs[k]`` with image shift
+    ``shifts[k]``, on the positions ``x`` (the module's arithmetic)."""
+    for k in numba.prange(pairs.shape[0]):
+        dx, dy, dz = separation_between(x, pairs[k, 0], x, pairs[k, 1], cell, shifts[k, 0],
+                                        shifts[k, 1], shifts[k, 2])
+        vec[k, 0] = dx
+        vec[k, 1] = dy
+        vec[k, 2] = dz
+        d[k] = math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+#: the serial build of ``separations``, for lists too short to share out
+separations_serial = serial_twin(separations)
