@@ -320,9 +320,10 @@ def test_dem_loop_runs_against_lammps(ex):
     from granularsap.bench import demloop
 
     r = demloop.dem_loop(150, steps=8, settle=300, n_threads=1, example=ex)
-    assert set(r["settings"]) == {"verlet", "rebuild"}
+    assert set(r["settings"]) == {"verlet", "list", "rebuild"}
     verlet, rebuild = r["settings"]["verlet"], r["settings"]["rebuild"]
-    for s in (verlet, rebuild):
+    listed = r["settings"]["list"]
+    for s in (verlet, listed, rebuild):
         g, lam = s["granularsap"], s["lammps"]
         assert 0 < g["min"] <= g["median"] and np.isfinite(g["mean"])
         assert 0 < g["walls_mean"] < g["mean"]
@@ -340,6 +341,12 @@ def test_dem_loop_runs_against_lammps(ex):
     # count runs on from the run's set-up, one build more); the Verlet list keeps it
     assert rebuild["granularsap"]["rebuilds"] == 8 and rebuild["lammps_builds"] >= 8
     assert verlet["granularsap"]["rebuilds"] < 8 and verlet["lammps_builds"] < 8
+    # the neighbour list: LAMMPS's Verlet run, granularsap's ContactList, which
+    # lists the contacts and more, and is rebuilt when a Verlet list is
+    assert listed["lammps"] == verlet["lammps"]
+    g = listed["granularsap"]
+    assert g["rebuilds"] == verlet["granularsap"]["rebuilds"]
+    assert g["listed"] >= g["contacts"] and g["separations_mean"] > 0
     assert rebuild["lammps"]["neigh"] > verlet["lammps"]["neigh"]
     assert 0 < rebuild["ratios"]["grains_neigh"] < rebuild["ratios"]["all_neigh"]
     # the single frame, as the bench's lammps-rebuild and granularsap-steady see it
@@ -349,6 +356,7 @@ def test_dem_loop_runs_against_lammps(ex):
     text = demloop.format_result(r)
     assert "N=150" in text and " verlet: a kept Verlet list" in text
     assert " rebuild: rebuilt every step" in text and "grains / Neigh" in text
+    assert " list: a kept neighbour list" in text and "listed pairs" in text
     assert "Neigh + Modify" in text and "fastest of 8 runs of 1 steps" in text
     assert "lammps-rebuild (Neigh + Comm of run 10" in text and "Modify holds" in text
 

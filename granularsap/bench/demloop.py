@@ -119,6 +119,10 @@ def _log_breakdown(path):
 SETTINGS = {
     "verlet": "a kept Verlet list (LAMMPS: neighbor 0.2 bin, check yes; granularsap: "
               "rebuild_margin 0.2)",
+    "list": "a kept neighbour list (LAMMPS: neighbor 0.2 bin, check yes, the verlet run; "
+            "granularsap: ContactList, rebuild_margin 0.2: the list rebuilt when a grain moved "
+            "half the margin, the springs moved at its rebuilds; the separations of the listed "
+            "pairs are the contact law's, as LAMMPS computes them in Pair)",
     "rebuild": "rebuilt every step (LAMMPS: neighbor 0.2 bin, every 1 delay 0 check no; "
                "granularsap: rebuild_margin 0)",
 }
@@ -241,16 +245,20 @@ class LammpsPour:
 
 
 def run_granularsap(example, positions, velocities, omegas, radii, width, steps, *, n_threads,
-                    dt, ids=None, margin=MARGIN, sort_every=None):
+                    dt, ids=None, margin=MARGIN, sort_every=None, neighbor_list=False):
     """Step the example's pour ``steps`` times, the grains put in spatial order every
     ``sort_every`` steps (default ``SORT_EVERY``); per-step search + history
-    seconds and stats."""
+    seconds and stats.  ``neighbor_list``: the grains through a ``ContactList``
+    (the separations of its pairs timed apart, ``separation_seconds``)."""
     sort_every = SORT_EVERY if sort_every is None else sort_every
     floor = example.floor_mesh(width)
     pour = example.Pour(positions, velocities, radii, width, floor, dt=dt,
-                        rebuild_margin=margin, n_threads=n_threads, ids=ids, omegas=omegas)
+                        rebuild_margin=margin, n_threads=n_threads, ids=ids, omegas=omegas,
+                        neighbor_list=neighbor_list)
+    grains = pour.contacts if neighbor_list else pour.search
     seconds = np.empty(steps)
     walls = np.empty(steps)
+    separations = np.zeros(steps)
     rebuilds = 0
     for k in range(steps):
         if k and k % sort_every == 0:
@@ -258,10 +266,16 @@ def run_granularsap(example, positions, velocities, omegas, radii, width, steps,
         pour.step()
         seconds[k] = pour.search_seconds
         walls[k] = pour.wall_seconds
-        rebuilds += bool(pour.search.stats.get("rebuilt"))
-    return {"seconds": seconds, "wall_seconds": walls, "rebuilds": rebuilds,
-            "contacts": len(pour.pairs), "wall_contacts": len(pour.wall_spring),
-            "path": pour.search.stats.get("path")}
+        separations[k] = pour.separation_seconds
+        rebuilds += bool(grains.stats.get("rebuilt"))
+    stats = grains.stats.get("search", {}) if neighbor_list else grains.stats
+    out = {"seconds": seconds, "wall_seconds": walls, "rebuilds": rebuilds,
+           "contacts": len(pour.pairs), "wall_contacts": len(pour.wall_spring),
+           "path": stats.get("path")}
+    if neighbor_list:
+        out["separations_mean"] = float(separations.mean())
+        out["listed"] = len(pour.history)
+    return out
 
 
 def _warm_identity_rest(n_threads):
@@ -402,21 +416,27 @@ def dem_loop(n, *, steps=STEPS, settle=SETTLE, n_threads=1, seed=0, example=None
             say(f"  LAMMPS not available ({why}): granularsap times the pour from the column")
     say("  one frame of the pour, as the bench's lammps-rebuild and granularsap-steady")
     out["frame"] = frame_rebuild(positions, radii, n_threads=n_threads, lammps=why is None)
-    for name, margin in (("verlet", MARGIN), ("rebuild", 0.0)):
-        say(f"  granularsap, rebuild_margin {margin}: {steps} steps")
+    if "lammps" in out["settings"]["verlet"]:  # one LAMMPS run for both kept lists
+        out["settings"]["list"].update({k: v for k, v in out["settings"]["verlet"].items()
+                                        if k != "what"})
+    for name, margin, listed in (("verlet", MARGIN, False), ("list", MARGIN, True),
+                                 ("rebuild", 0.0, False)):
+        say(f"  granularsap, rebuild_margin {margin}{', ContactList' if listed else ''}: "
+            f"{steps} steps")
         # untimed: compile (or load from the cache) what this pour's searches use,
         # a re-ordering of the grains included (the timed steps have them), a
         # Verlet list rebuilt on grains in the same rows (a margin rebuilt every
         # step: the identity matches pairs by rows) and the identity's second pass
         run_granularsap(ex, positions, velocities, omegas, radii, width, 4,
-                        n_threads=n_threads, dt=dt, margin=margin, sort_every=2)
+                        n_threads=n_threads, dt=dt, margin=margin, sort_every=2,
+                        neighbor_list=listed)
         if margin:
             run_granularsap(ex, positions, velocities, omegas, radii, width, 3,
                             n_threads=n_threads, dt=dt, margin=1e-12 * margin,
-                            sort_every=steps + 1)
+                            sort_every=steps + 1, neighbor_list=listed)
         _warm_identity_rest(n_threads)
         gs = run_granularsap(ex, positions, velocities, omegas, radii, width, steps,
-                             n_threads=n_threads, dt=dt, margin=margin)
+                             n_threads=n_threads, dt=dt, margin=margin, neighbor_list=listed)
         s = out["settings"][name]
         s["granularsap"] = g = _granularsap_figures(gs, bounds)
         if "lammps" not in s:
@@ -450,7 +470,9 @@ def format_result(r):
                      f"(median {g['grains_median'] * ms:.3f}), walls (search + history) "
                      f"{g['walls_mean'] * ms:.3f}, both {g['mean'] * ms:.3f}; "
                      f"{g['rebuilds']} list rebuilds, {g['contacts']} contacts + "
-                     f"{g['wall_contacts']} on walls at the end, path {g['path']}")
+                     f"{g['wall_contacts']} on walls at the end, path {g['path']}"
+                     + (f"; {g['listed']} listed pairs, their separations (contact law) "
+                        f"{g['separations_mean'] * ms:.3f}" if "listed" in g else ""))
         if "lammps" not in s:
             continue
         lam = s["lammps"]
