@@ -30,6 +30,7 @@ import numpy as np
 from ._numba import get_threads, num_threads
 from ._validate import as_coords, as_scalar, check_n_threads
 from .cell import Cell
+from .identity import as_ids
 from .kernels import listed
 from .search import ContactSearch, as_labels, as_radii
 
@@ -192,16 +193,24 @@ class ContactList:
             return "count"
         if self._cell_key(box, pbc) != self._key:
             return "cell"
-        if (ids is None) != (self._ids is None) or (
-                ids is not None and not np.array_equal(ids, self._ids)):
+        if (ids is None) != (self._ids is None):
             return "ids"
         if (clump_ids is None) != (self._labels is None) or (
                 clump_ids is not None and not np.array_equal(clump_ids, self._labels)):
             return "clump_ids"
         pos = positions if positions.flags.c_contiguous else np.ascontiguousarray(positions)
-        state = listed.kept_list_state(pos, self._x, rad, self._r, self._limit2)
+        if ids is None:
+            ids = _NO_ROWS
+        elif not (type(ids) is np.ndarray and ids.dtype == np.int64
+                  and ids.shape == self._ids.shape and ids.flags.c_contiguous):
+            ids = as_ids(ids, len(positions))
+        state = listed.kept_list_state(pos, self._x, rad, self._r, ids,
+                                       _NO_ROWS if self._ids is None else self._ids,
+                                       self._limit2)
         if state == 2:
             return "radii"
+        if state == 3:
+            return "ids"
         return "moved" if state else None
 
     @staticmethod
@@ -228,7 +237,7 @@ class ContactList:
         # what the next steps compare with (copies: the script may change its arrays)
         self._x = np.array(positions, dtype=np.float64, order="C")
         self._r = np.array(rad, dtype=np.float64)
-        self._ids = None if ids is None else np.array(ids)
+        self._ids = None if ids is None else np.array(ids, dtype=np.int64)
         self._labels = None if clump_ids is None else np.array(as_labels(clump_ids,
                                                                          len(positions)))
         cell = Cell.coerce(box, pbc)

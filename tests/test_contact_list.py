@@ -96,7 +96,7 @@ def test_touching_pairs_are_the_contacts_and_history_follows_ids(kind, threads):
     # the list was kept on most steps and rebuilt when spheres moved, came or went
     assert reasons.count(None) >= 20, reasons
     assert reasons[0] == "first" and "moved" in reasons
-    assert reasons[17] in ("count", "ids") and reasons[29] == "ids"
+    assert reasons[17] in ("count", "ids") and reasons[29] in ("radii", "ids")
 
 
 def test_the_same_lists_on_one_and_two_threads():
