@@ -275,6 +275,40 @@ class TestErrors:
         assert main(["contacts", str(dump), "-o", str(ref), "--frames", "0:3", "-q"]) == 0
         assert_same_contacts_file(out, ref)
 
+    def test_a_trajectory_written_again_at_the_same_size_starts_over(self, tmp_path,
+                                                                    capsys):
+        """A partial run of a trajectory since overwritten by another one of the same
+        size (another run of the same simulation) is not resumed with the new frames."""
+        dump = tmp_path / "t.dump"
+        write_dump(dump, random_frames(20, 4, cell=lammps_cell(5, 5, 5)),
+                   columns=("id", "radius", "x", "y", "z"))
+        lines = dump.read_text().splitlines(keepends=True)
+        dump.write_text("".join(lines[:-3]))  # the run stops at frame 3
+        out = tmp_path / "t.h5"
+        assert main(["contacts", str(dump), "-o", str(out), "-q"]) == 2
+        # the other run: every x moved by 0.5 in its first decimal, each line its length
+        text = dump.read_text().splitlines(keepends=True)
+        for k, line in enumerate(text):
+            parts = line.split(" ")
+            if len(parts) == 5 and "." in parts[2]:
+                dot = parts[2].index(".") + 1
+                digit = (int(parts[2][dot]) + 5) % 10
+                parts[2] = parts[2][:dot] + str(digit) + parts[2][dot + 1:]
+                text[k] = " ".join(parts)
+        text = "".join(text)
+        assert len(text) == dump.stat().st_size and text != dump.read_text()
+        stamp = dump.stat().st_mtime_ns
+        dump.write_text(text)
+        os.utime(dump, ns=(stamp + 10**9, stamp + 10**9))
+        capsys.readouterr()
+        assert main(["contacts", str(dump), "-o", str(out), "--frames", "0:3"]) == 0
+        err = capsys.readouterr().err
+        assert "starting over: partial run of a trajectory modified since" in err
+        assert "resuming" not in err
+        ref = tmp_path / "ref.h5"
+        assert main(["contacts", str(dump), "-o", str(ref), "--frames", "0:3", "-q"]) == 0
+        assert_same_contacts_file(out, ref)
+
     def test_another_start_or_step_still_starts_over(self, tmp_path, capsys):
         dump = tmp_path / "t.dump"
         write_dump(dump, random_frames(20, 4, cell=lammps_cell(5, 5, 5)),

@@ -217,10 +217,82 @@ class TestTruncatedAndCorrupt:
             list(iter_frames(path))
 
     def test_garbage_between_frames(self, tmp_path):
+        """Anything but a header line after a frame's atom rows is that frame's error,
+        found before the frame is given (a reader of that frame alone finds it too)."""
         path, lines = self._dump(tmp_path)
         lines.insert(39, "hello\n")
         path.write_text("".join(lines))
-        with pytest.raises(DumpFormatError, match=r"frame 1, line 40: expected an 'ITEM:' line"):
+        got = []
+        with pytest.raises(DumpFormatError,
+                           match=r"frame 0, line 40: NUMBER OF ATOMS says 30 atom rows but "
+                                 r"more rows follow: 'hello' after atom row 30"):
+            for fr in iter_frames(path):
+                got.append(fr.index)
+        assert got == []
+
+    def test_more_rows_than_number_of_atoms_is_that_frames_error(self, tmp_path):
+        """One more atom row than NUMBER OF ATOMS says: an error of that frame, on the
+        whole-file reader and on the reader of that frame alone (a Dask worker's)."""
+        from granularsap.io.lammps_dump import dump_frame_index, iter_lammps_dump
+
+        path, lines = self._dump(tmp_path)
+        extra = lines[39 + 9 + 29].split()
+        extra[0] = "999"
+        lines.insert(39 + 9 + 30, " ".join(extra) + "\n")  # after frame 1's 30 rows
+        path.write_text("".join(lines))
+        want = (r"frame 1, line 79: NUMBER OF ATOMS says 30 atom rows but more rows follow: "
+                r"'999 ")
+        got = []
+        with pytest.raises(DumpFormatError, match=want):
+            for fr in iter_frames(path):
+                got.append(fr.index)
+        assert got == [0]
+        offsets, starts = dump_frame_index(path)
+        with pytest.raises(DumpFormatError, match=want):
+            list(iter_lammps_dump(path, frames=slice(0, 1),
+                                  start_at=(offsets[1], starts[1], 1)))
+        # the last frame too: rows after it where the file should end
+        path, lines = self._dump(tmp_path)
+        path.write_text("".join(lines) + lines[-1])
+        with pytest.raises(DumpFormatError, match=r"frame 2, line 118: NUMBER OF ATOMS says 30"):
+            list(iter_frames(path))
+
+    @pytest.mark.parametrize("with_id", [True, False])
+    def test_blank_line_among_atom_rows_names_it(self, tmp_path, with_id):
+        """A blank line inside a frame's atom rows (which numpy's loadtxt skips) is an
+        error on its line, not one atom fewer."""
+        path = tmp_path / "t.dump"
+        cols = ("id", "type", "x", "y", "z") if with_id else ("type", "x", "y", "z")
+        write_dump(path, random_frames(20, 2, cell=ORTHO, seed=3), columns=cols)
+        lines = path.read_text().splitlines(keepends=True)
+        lines.insert(9 + 5, "\n")  # frame 0: a blank line after its 5th atom row
+        path.write_text("".join(lines))
+        got = []
+        with pytest.raises(DumpFormatError, match=rf"frame 0, line 15: expected {len(cols)} "
+                                                  r"values on an atom row, got 0"):
+            for fr in iter_frames(path):
+                got.append(fr.index)
+        assert got == []
+
+    def test_ids_beyond_float_precision_are_read_exactly(self, tmp_path):
+        """LAMMPS's 64-bit atom ids (-DLAMMPS_BIGBIG) above 2**53: read as integers."""
+        path = tmp_path / "t.dump"
+        write_dump(path, random_frames(5, 1, cell=ORTHO, seed=3), columns=("id", "x", "y", "z"))
+        lines = path.read_text().splitlines(keepends=True)
+        big = [2**53 + 1, 2**53 + 3, 2**63 - 1, 7, 2**53 + 2]
+        for k, value in enumerate(big):
+            parts = lines[9 + k].split()
+            parts[0] = str(value)
+            lines[9 + k] = " ".join(parts) + "\n"
+        path.write_text("".join(lines))
+        (fr,) = iter_frames(path)
+        assert fr.ids.dtype == np.int64 and fr.ids.tolist() == sorted(big)
+        parts = lines[9].split()
+        parts[0] = str(2**63)
+        lines[9] = " ".join(parts) + "\n"
+        path.write_text("".join(lines))
+        with pytest.raises(DumpFormatError, match=r"frame 0, line 10: column 'id': "
+                                                  r"'9223372036854775808' is not an integer"):
             list(iter_frames(path))
 
     def test_fewer_rows_than_number_of_atoms_names_the_frame_and_the_missing_rows(self,

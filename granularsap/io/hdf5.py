@@ -259,11 +259,13 @@ class ContactsWriter:
     """
 
     def __init__(self, path, parameters, *, distances=False, clumps=False, resume=True,
-                 commit_seconds=1.0):
+                 commit_seconds=1.0, source_stamp=None):
         self.h5py = _h5py()
         self.path = os.fspath(path)
         self.tmp = partial_path(self.path)
         self.parameters = json.loads(json.dumps(parameters))
+        self.source_stamp = None if source_stamp is None else json.loads(json.dumps(
+            source_stamp))
         self.distances = bool(distances)
         self.clumps = bool(clumps)
         self.commit_seconds = float(commit_seconds)
@@ -290,7 +292,8 @@ class ContactsWriter:
 
         return {"format": FORMAT_NAME, "schema_version": SCHEMA_VERSION,
                 "granularsap_version": __version__, "parameters": self.parameters,
-                "distances": self.distances, "clumps": self.clumps, "created": _now()}
+                "distances": self.distances, "clumps": self.clumps, "created": _now(),
+                "source_stamp": self.source_stamp}
 
     def _create(self):
         if os.path.isdir(self.tmp):
@@ -315,6 +318,10 @@ class ContactsWriter:
         old_frames, new_frames = old.pop("frames", None), new.pop("frames", None)
         if not same or old != new:
             self.discarded_reason = "partial run with different parameters"
+            return
+        if info.get("source_stamp") != mine["source_stamp"]:
+            # the same size, but written again since (another run of the simulation)
+            self.discarded_reason = "partial run of a trajectory modified since"
             return
         segments, last, rows = _list_segments(self.tmp, self.h5py)
         if old_frames != new_frames:

@@ -146,7 +146,7 @@ def _parse_atoms(lines, ncol, path, frame, first_line):
         data = np.loadtxt(lines, dtype=np.float64, ndmin=2, comments=None)
     except ValueError:
         data = None
-    if data is not None and data.shape[1] == ncol:
+    if data is not None and data.shape == (len(lines), ncol):  # (loadtxt skips blank lines)
         return data, None
     # slow path: locate the bad row, or fall back to string columns
     rows = []
@@ -403,7 +403,7 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
                     got += 1
                 if got != natoms:
                     fail(f"truncated: expected {natoms} atom rows, got {got}")
-                line = src.next()
+                line = _after_rows(src, natoms, fail)
                 continue
             rows = src.take(natoms)
             if len(rows) != natoms:
@@ -413,11 +413,40 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
             if rows and not rows[-1].endswith("\n"):  # its last value may be cut short
                 fail(f"truncated: the file ends in the middle of atom row {natoms} of {natoms} "
                      "(no end of line)")
+            line = _after_rows(src, natoms, fail)
             yield frame
-            line = src.next()
         if src.cut:
             raise DumpFormatError(path, first_index + index + 1, src.lineno,
                                   "truncated: the gzip-compressed file ends early")
+
+
+def _int_column(rows, k, path, index, first_row, name):
+    """Column ``k`` of the atom rows read as int64 from its text."""
+    out = np.empty(len(rows), np.int64)
+    for r, line in enumerate(rows):
+        text = line.split()[k]
+        try:
+            out[r] = int(text)
+        except (ValueError, OverflowError):
+            raise DumpFormatError(path, index, first_row + r,
+                                  f"column {name!r}: {text!r} is not an integer that fits "
+                                  "in int64") from None
+    return out
+
+
+def _after_rows(src, natoms, fail):
+    """The first line after a frame's ``natoms`` atom rows that is not blank: the
+    next frame's first header line, or None at the end of the file.  Anything
+    else is one more atom row than NUMBER OF ATOMS says (or stray text), an
+    error of this frame, found before it is yielded (so a reader of one frame,
+    a Dask worker, finds it as the whole-file reader does)."""
+    line = src.next()
+    while line is not None and not line.strip():
+        line = src.next()
+    if line is not None and not line.lstrip().startswith("ITEM:"):
+        fail(f"NUMBER OF ATOMS says {natoms} atom rows but more rows follow: "
+             f"{line.strip()[:40]!r} after atom row {natoms}")
+    return line
 
 
 def _build_frame(path, index, names, rows, header, coordinates, first_row, frame_start):
@@ -439,10 +468,16 @@ def _build_frame(path, index, names, rows, header, coordinates, first_row, frame
             else:
                 col = col.astype(str)
         if name in _INT_COLUMNS and col.dtype.kind == "f":
-            ints = col.astype(np.int64)
-            if not np.array_equal(ints, col):
-                raise DumpFormatError(path, index, first_row, f"column {name!r} is not integer")
-            col = ints
+            if len(col) and not np.abs(col).max() < 2.0**53:
+                # beyond the integers a float64 holds exactly (LAMMPS's 64-bit tags):
+                # the column's text, read as integers
+                col = _int_column(rows, k, path, index, first_row, name)
+            else:
+                ints = col.astype(np.int64)
+                if not np.array_equal(ints, col):
+                    raise DumpFormatError(path, index, first_row,
+                                          f"column {name!r} is not integer")
+                col = ints
         columns[name] = col
     if coordinates is None:
         coordinates = next((c for c, cols in COORDINATE_SETS.items()
