@@ -556,6 +556,10 @@ class WallSearch:
                                 f"{type(w).__name__}")
         #: the walls, in the order contacts name them (a tuple: fixed for the search)
         self.walls = tuple(walls)
+        self._planes = [w for w, wall in enumerate(self.walls) if isinstance(wall, Plane)]
+        self._wid = np.asarray(self._planes, np.int64)
+        self._n_faces = sum(len(w.faces) for w in self.walls if isinstance(w, TriangleMesh))
+        self._plane_cache = None  # (cell, the planes' points and normals, arrays)
         self.skin = as_scalar(skin, "skin")
         self.rebuild_margin = as_scalar(rebuild_margin, "rebuild_margin")
         if not isinstance(identity, (bool, np.bool_)):
@@ -690,8 +694,7 @@ class WallSearch:
                 sphere_key = self._ids_checked = sphere_key.copy()
         verts = self._vertices_for(vertices)
         threads = self.n_threads
-        faces = sum(len(w.faces) for w in self.walls if isinstance(w, TriangleMesh))
-        if threads is None and n + faces < _PARALLEL_MIN:
+        if threads is None and n + self._n_faces < _PARALLEL_MIN:
             threads = 1
         # one thread setting for the whole call (the meshes, their broad phase and
         # the identity), set and restored once
@@ -702,7 +705,7 @@ class WallSearch:
         """The call on validated inputs, under its thread count ``threads``."""
         h = r + self.skin
         if cell is not None:
-            xw = cell.wrap(x)
+            xw = np.ascontiguousarray(cell.wrap(x))
             delta = x - xw  # given minus wrapped position (whole cell vectors)
         else:
             xw, delta = x, _NO_ROWS3
@@ -711,10 +714,10 @@ class WallSearch:
         bounds = [0]
         tested = 0
         rebuilt = False
-        planes = [w for w, wall in enumerate(self.walls) if isinstance(wall, Plane)]
+        planes = self._planes
         if planes:
             pts, nrm = self._plane_arrays(planes, cell)
-            wid = np.asarray(planes, np.int64)
+            wid = self._wid
             k = _tri.plane_contacts(x, h, pts, nrm, wid, self._st_i, self._st_f, 0)
             if k > len(self._st_i):
                 self._grow_stage(k, 0)
@@ -766,8 +769,37 @@ class WallSearch:
             got = self._work[name] = np.empty((rows, *shape[1:]), dtype)
         return got
 
+    def _select_work(self, k):
+        """The work arrays of ``mesh_select`` for ``k`` candidate pairs, kept (grown
+        by doubling): distances and points (k,), nine int64 arrays (k + 1,) (region,
+        element, kind, feature id, f0, f1, group starts, offsets, order) and the
+        feature table of ``SLOTS`` rows per pair."""
+        got = self._work.get("select")
+        if got is None or got[0] < k:
+            cap = max(k, 2 * (0 if got is None else got[0]), 16)
+            slots = _tri.SLOTS * cap
+            got = self._work["select"] = (
+                cap, np.empty(cap), np.empty((cap, 3)),
+                [np.empty(cap + 1, np.int64) for _ in range(9)],
+                (np.empty(slots, np.int64), np.empty(slots), np.empty(slots, np.int64),
+                 np.empty(slots, np.int64)))
+        return got[1:]
+
     def _plane_arrays(self, planes, cell):
-        """Points and normals (p, 3) of the planes, checked against the cell."""
+        """Points and normals (p, 3) of the planes, checked against the cell; kept
+        while the planes' points and normals (read-only arrays, new ones when set)
+        and the cell are the same."""
+        given = [(self.walls[w].point, self.walls[w].normal) for w in planes]
+        got = self._plane_cache
+        if (got is not None and (got[0] is cell or (cell is not None and got[0] == cell))
+                and all(a is b and c is d for (a, c), (b, d) in zip(got[1], given,
+                                                                     strict=True))):
+            return got[2], got[3]
+        pts, nrm = self._plane_rows(planes, cell)
+        self._plane_cache = (cell, given, pts, nrm)
+        return pts, nrm
+
+    def _plane_rows(self, planes, cell):
         pts = np.empty((len(planes), 3))
         nrm = np.empty((len(planes), 3))
         for j, w in enumerate(planes):
@@ -896,7 +928,7 @@ class WallSearch:
         kern = _tri if threads > 1 else _tri.serial
         kept = self._kept.get(w)
         if (kept is not None and kept[0] is geo and len(kept[2]) == n
-                and np.array_equal(kept[1], h) and not _tri.moved_beyond(xw, kept[2], margin)):
+                and _tri.kept_pairs_hold(xw, kept[2], h, kept[1], margin)):
             # every box of this call lies in its box grown by the margin at the
             # build (and the guard of the boxes covers the rounding): the kept
             # pairs hold this call's
@@ -921,16 +953,7 @@ class WallSearch:
         if k == 0:
             bounds.append(base)
             return 0, built
-        dist = self._scratch("dist", (k,))
-        point = self._scratch("point", (k, 3))
-        ints = [self._scratch(name, (k + 1,), np.int64)
-                for name in ("region", "elem", "kind", "fid", "f0", "f1", "gstart",
-                             "offsets", "order")]
-        slots = _tri.SLOTS * k
-        table = (self._scratch("hkey", (slots,), np.int64),
-                 self._scratch("hdist", (slots,)),
-                 self._scratch("hkind", (slots,), np.int64),
-                 self._scratch("hbest", (slots,), np.int64))
+        dist, point, ints, table = self._select_work(k)
         groups, total = kern.mesh_select(cand, xw, h, _TIE, itri, rows, shifts, corners,
                                          face_edges, edges, tlo, thi, top, _GUARD, dist, point,
                                          *ints, *table)

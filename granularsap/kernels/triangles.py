@@ -182,14 +182,22 @@ def sphere_boxes(x, h, top, guard, lower, upper):
 
 
 @jit
-def moved_beyond(x, x_built, margin):
-    """Whether a coordinate of ``x`` differs from ``x_built`` by more than ``margin``
-    (rows alike; NaN counts as moved)."""
-    for s in range(x.shape[0]):
-        for ax in range(3):
-            if not abs(x[s, ax] - x_built[s, ax]) <= margin:
-                return True
-    return False
+def kept_pairs_hold(x, x_built, h, h_built, margin):
+    """Whether a broad phase built on ``x_built`` with reaches ``h_built`` (boxes
+    grown by ``margin``) holds the pairs of ``x`` and ``h``: the reaches equal,
+    and no coordinate differs by more than ``margin`` (NaN counts as moved).
+    Rows alike.  No early exit: each loop is one vectorised reduction."""
+    changed = 0
+    for s in range(h.shape[0]):
+        changed += h[s] != h_built[s]
+    if changed:
+        return False
+    xf = x.reshape(-1)
+    bf = x_built.reshape(-1)
+    moved = 0
+    for k in range(xf.shape[0]):
+        moved += not abs(xf[k] - bf[k]) <= margin
+    return moved == 0
 
 
 @ijit
