@@ -45,6 +45,16 @@ _ROUNDING = 1e-12
 _NO_ROWS = np.empty(0, np.int64)
 
 
+class _ListBuilder(ContactSearch):
+    """The search that builds the list: its skin holds the margin, and its
+    messages say so."""
+
+    _what = "interaction range 2 * max(radii) + skin + rebuild_margin"
+    _names = ("the smallest listed distance 2 * min(radii) + skin + rebuild_margin",
+              "the interaction range 2 * max(radii) + skin + rebuild_margin",
+              "2 * min(radii) + skin + rebuild_margin")
+
+
 class ContactList:
     """The sphere pairs within reach of contact, kept between rebuilds.
 
@@ -120,9 +130,9 @@ class ContactList:
         self.rebuild_margin = as_scalar(rebuild_margin, "rebuild_margin", positive=True)
         self.skin = as_scalar(skin, "skin")
         self.n_threads = check_n_threads(n_threads)
-        self._search = ContactSearch(skin=self.skin + self.rebuild_margin, quantities="PS",
-                                     periodic_images=periodic_images, n_threads=n_threads,
-                                     path=path, identity=True)
+        self._search = _ListBuilder(skin=self.skin + self.rebuild_margin, quantities="PS",
+                                    periodic_images=periodic_images, n_threads=n_threads,
+                                    path=path, identity=True)
         self.periodic_images = periodic_images
         self.rebuilt = False
         self.stats = {"rebuilt": False, "reason": None, "builds": 0, "pairs": 0}

@@ -196,6 +196,11 @@ def test_errors_name_the_argument():
         ContactList(rebuild_margin=0.2, skin=-1.0)
     with pytest.raises(ValueError, match="periodic_images"):
         ContactList(rebuild_margin=0.2, periodic_images="some")
+    # a range beyond half the cell, once the margin is added: the message says so
+    x3 = np.random.default_rng(0).uniform(0, 3, (20, 3))
+    with pytest.raises(ValueError, match=r"2 \* max\(radii\) \+ skin \+ rebuild_margin "
+                                         r"1\.59.* exceeds half"):
+        ContactList(rebuild_margin=0.2).update(x3, 0.7, [3, 3, 3, 90, 90, 90])
     cl = ContactList(rebuild_margin=0.2)
     with pytest.raises(RuntimeError, match="call update first"):
         cl.separations(np.zeros((2, 3)))
