@@ -390,9 +390,11 @@ class TriangleMesh:
 
     def _periodic_adjacency(self, verts, cell):
         """Adjacency with vertices that coincide modulo the periodic cell vectors
-        identified (kept for the last cell)."""
+        identified (kept for the last cell and vertices: which vertices meet
+        across a periodic face depends on where they are)."""
         got = self._periodic
-        if got is not None and got[0] == cell:
+        if (got is not None and got[0] == cell
+                and (got[2] is verts or np.array_equal(got[2], verts))):
             return got[1]
         s = cell.fractional(verts)
         pbc = cell.pbc
@@ -404,7 +406,8 @@ class TriangleMesh:
         _, first, inverse = np.unique(q + 0.0, axis=0, return_index=True, return_inverse=True)
         vid = np.ascontiguousarray(self._vid[first[inverse.reshape(-1)]], dtype=np.int64)
         adj = _adjacency(vid, self._faces)
-        self._periodic = (cell, adj)  # the last cell only (a deforming cell: one entry)
+        # the last cell and vertices only (a deforming cell or a moving mesh: one entry)
+        self._periodic = (cell, adj, verts if not verts.flags.writeable else verts.copy())
         return adj
 
 

@@ -1194,3 +1194,32 @@ def test_docstring_examples():
     result = doctest.testmod(granularsap.walls,
                              optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
     assert result.failed == 0 and result.attempted > 0
+
+
+@pytest.mark.parametrize("how", ["attribute", "per call"])
+def test_moved_vertices_meet_across_periodic_faces_where_they_are_now(how):
+    """Which vertices meet across a periodic face is found again when the mesh's
+    vertices move: a seam row raised into a step gives the contacts a fresh mesh
+    of the moved vertices gives (an edge contact at the step), and back."""
+    L = 4.0
+    g = np.linspace(0, L, 3)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    V = np.column_stack([X.ravel(), Y.ravel(), np.zeros(9)])
+    a = np.array([0, 1, 3, 4])
+    F = np.concatenate([np.stack((a, a + 3, a + 4), 1), np.stack((a, a + 4, a + 1), 1)])
+    cell = Cell(np.diag([L, L, 20.0]), pbc=[True, True, False])
+    raised = V.copy()
+    raised[V[:, 0] == L, 2] = 0.3  # the x = L row raised: a step at the seam
+    x = np.array([[0.05, 1.0, 0.45], [2.0, 2.0, 0.4]])
+    mesh = TriangleMesh(V, F)
+    search = WallSearch([mesh])
+    for verts in (V, raised, V, raised):
+        if how == "attribute":
+            mesh.vertices = verts
+            got = search.update(x, 0.5, cell)
+        else:
+            got = search.update(x, 0.5, cell, vertices=verts)
+        want = WallSearch([TriangleMesh(verts, F)]).update(x, 0.5, cell)
+        for name in ("sphere", "element", "feature", "distance", "normal", "point"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+    assert 1 in want.feature.tolist()  # the raised row's edge: the contact at the step
