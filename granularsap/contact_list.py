@@ -23,6 +23,7 @@ contact law, which computes the separations anyway.
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -145,6 +146,7 @@ class ContactList:
         self._key = None
         self._matrix = np.zeros((3, 3))
         self._limit2 = -1.0
+        self._sc = 1.0
         self._kept_rows = _NO_ROWS
         self._previous = _NO_ROWS
         self._ended = _NO_ROWS
@@ -216,7 +218,7 @@ class ContactList:
             ids = as_ids(ids, len(positions))
         state = listed.kept_list_state(pos, self._x, rad, self._r, ids,
                                        _NO_ROWS if self._ids is None else self._ids,
-                                       self._limit2)
+                                       self._sc, self._limit2)
         if state == 2:
             return "radii"
         if state == 3:
@@ -253,7 +255,11 @@ class ContactList:
         cell = Cell.coerce(box, pbc)
         self._key = self._cell_key(box, pbc)
         self._matrix = np.zeros((3, 3)) if cell is None else np.array(cell.matrix, np.float64)
-        self._limit2 = self._limit(positions, rad) ** 2
+        # the limit compared in units of its own power of two (squares in range
+        # whatever the magnitudes)
+        limit = self._limit(positions, rad)
+        self._sc = math.ldexp(1.0, min(-math.frexp(limit)[1], 1000)) if limit > 0.0 else 1.0
+        self._limit2 = (limit * self._sc) ** 2
         self.rebuilt = True
         self.stats = {"rebuilt": True, "reason": reason, "builds": self.stats["builds"] + 1,
                       "pairs": len(pairs), "search": search.stats,

@@ -229,3 +229,27 @@ def test_a_rebuild_carries_as_the_building_search_does():
             np.testing.assert_array_equal(shifts, s2)
             np.testing.assert_array_equal(cl.previous_rows, ref.previous_rows)
             np.testing.assert_array_equal(cl.ended_rows, ref.ended_rows)
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e-160, 1e200, 2.0**-1000])
+def test_any_magnitude_gives_the_contacts_of_a_search(scale):
+    """Positions, radii and margin of any magnitude: the touching listed pairs are
+    ContactSearch's contacts with the same d, D and shifts, bit for bit (squares
+    that would underflow or overflow are taken row by row in their own power of
+    two, as the searches do), and the list is kept between rebuilds."""
+    frames = walk(4, 12, 120, step=0.03)
+    cl = ContactList(rebuild_margin=0.3 * scale)
+    kept = 0
+    for x, r, ids in frames:
+        x, r = x * scale, r * scale
+        pairs, shifts = cl.update(x, r, ids=ids)
+        kept += not cl.rebuilt
+        d, vec = cl.separations(x)
+        touch = d <= r[pairs[:, 0]] + r[pairs[:, 1]]
+        p2, d2, v2, s2 = ContactSearch(quantities="PdDS").update(x, r)
+        got = sorted(zip(map(tuple, pairs[touch].tolist()), d[touch].tolist(),
+                         map(tuple, vec[touch].tolist()), strict=True))
+        want = sorted(zip(map(tuple, p2.tolist()), d2.tolist(), map(tuple, v2.tolist()),
+                          strict=True))
+        assert got == want
+    assert kept >= 5

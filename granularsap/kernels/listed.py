@@ -17,21 +17,22 @@ import math
 
 import numba
 
-from .._numba import jit, pjit, serial_twin
+from .._numba import ijit, jit, pjit, serial_twin
 from .common import separation_between
 
 __all__ = ["kept_list_state", "separations", "separations_serial"]
 
 
 @jit
-def kept_list_state(x, x_built, radii, radii_built, ids, ids_built, limit2):
+def kept_list_state(x, x_built, radii, radii_built, ids, ids_built, sc, limit2):
     """Why a kept list no longer holds every contact: 0 while every row of ``x``
-    is within ``sqrt(limit2)`` of ``x_built`` (Euclidean) and ``radii`` and
-    ``ids`` equal ``radii_built`` and ``ids_built``; 1 when a row moved farther
-    (NaN and inf count as moved); 2 when a radius differs, 3 when an id does.
-    Rows alike in all (``ids`` may be empty).  No early exit: each loop is one
-    vectorised reduction, which reads the rows faster than a branch per row
-    would."""
+    is within the limit of ``x_built`` (Euclidean: ``|sc (x - x_built)|^2 <=
+    limit2``, ``sc`` a power of two that keeps the squares in range; with
+    ``limit2 == 0``, not moved at all) and ``radii`` and ``ids`` equal
+    ``radii_built`` and ``ids_built``; 1 when a row moved farther (NaN and inf
+    count as moved); 2 when a radius differs, 3 when an id does.  Rows alike in
+    all (``ids`` may be empty).  No early exit: each loop is one vectorised
+    reduction, which reads the rows faster than a branch per row would."""
     changed = 0
     for s in range(radii.shape[0]):
         changed += radii[s] != radii_built[s]
@@ -46,13 +47,39 @@ def kept_list_state(x, x_built, radii, radii_built, ids, ids_built, limit2):
     xf = x.reshape(-1)
     bf = x_built.reshape(-1)
     moved = 0
+    differ = 0
     for s in range(x.shape[0]):
         k = 3 * s
-        d0 = xf[k] - bf[k]
-        d1 = xf[k + 1] - bf[k + 1]
-        d2 = xf[k + 2] - bf[k + 2]
+        d0 = (xf[k] - bf[k]) * sc
+        d1 = (xf[k + 1] - bf[k + 1]) * sc
+        d2 = (xf[k + 2] - bf[k + 2]) * sc
         moved += not d0 * d0 + d1 * d1 + d2 * d2 <= limit2
+        differ += (d0 != 0.0) | (d1 != 0.0) | (d2 != 0.0)
+    if limit2 == 0.0:
+        moved += differ
     return 1 if moved else 0
+
+
+#: squared separations between these are exact as computed: no square that
+#: matters is subnormal, none overflows
+_SMALL_Q = 2.0 ** -900
+_LARGE_Q = 2.0 ** 900
+
+
+@ijit
+def _scaled_norm(dx, dy, dz):
+    """``|D|`` as float64 with an unbounded exponent would give it: the row scaled
+    by the power of two of its largest component (exact), as the searches do
+    where squares would underflow or overflow (docs/cells.md, "Magnitudes in one
+    frame")."""
+    m = max(abs(dx), abs(dy), abs(dz))
+    if m == 0.0 or not m < math.inf:
+        return m
+    e = math.frexp(m)[1]
+    u0 = math.ldexp(dx, -e)
+    u1 = math.ldexp(dy, -e)
+    u2 = math.ldexp(dz, -e)
+    return math.ldexp(math.sqrt(u0 * u0 + u1 * u1 + u2 * u2), e)
 
 
 @pjit
@@ -65,7 +92,11 @@ def separations(x, pairs, shifts, cell, d, vec):
         vec[k, 0] = dx
         vec[k, 1] = dy
         vec[k, 2] = dz
-        d[k] = math.sqrt(dx * dx + dy * dy + dz * dz)
+        q = dx * dx + dy * dy + dz * dz
+        if _SMALL_Q <= q <= _LARGE_Q:
+            d[k] = math.sqrt(q)
+        else:
+            d[k] = _scaled_norm(dx, dy, dz)
 
 
 #: the serial build of ``separations``, for lists too short to share out
