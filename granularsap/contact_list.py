@@ -255,10 +255,14 @@ class ContactList:
         cell = Cell.coerce(box, pbc)
         self._key = self._cell_key(box, pbc)
         self._matrix = np.zeros((3, 3)) if cell is None else np.array(cell.matrix, np.float64)
-        # the limit compared in units of its own power of two (squares in range
-        # whatever the magnitudes)
+        # an extreme limit is compared in units of its own power of two (its
+        # square in range); between 2**-400 and 2**400 squares need no scaling
+        # (a displacement far beyond the limit may overflow to inf: moved; one
+        # far below may underflow to 0: not moved, as it is)
         limit = self._limit(positions, rad)
-        self._sc = math.ldexp(1.0, min(-math.frexp(limit)[1], 1000)) if limit > 0.0 else 1.0
+        self._sc = 1.0
+        if limit > 0.0 and not 2.0 ** -400 < limit < 2.0 ** 400:
+            self._sc = math.ldexp(1.0, min(-math.frexp(limit)[1], 1000))
         self._limit2 = (limit * self._sc) ** 2
         self.rebuilt = True
         self.stats = {"rebuilt": True, "reason": reason, "builds": self.stats["builds"] + 1,

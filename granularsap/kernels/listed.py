@@ -47,16 +47,24 @@ def kept_list_state(x, x_built, radii, radii_built, ids, ids_built, sc, limit2):
     xf = x.reshape(-1)
     bf = x_built.reshape(-1)
     moved = 0
-    differ = 0
+    if limit2 == 0.0:  # no room at all: any change of a coordinate
+        for k in range(xf.shape[0]):
+            moved += xf[k] != bf[k]
+        return 1 if moved else 0
+    if sc == 1.0:
+        for s in range(x.shape[0]):
+            k = 3 * s
+            d0 = xf[k] - bf[k]
+            d1 = xf[k + 1] - bf[k + 1]
+            d2 = xf[k + 2] - bf[k + 2]
+            moved += not d0 * d0 + d1 * d1 + d2 * d2 <= limit2
+        return 1 if moved else 0
     for s in range(x.shape[0]):
         k = 3 * s
         d0 = (xf[k] - bf[k]) * sc
         d1 = (xf[k + 1] - bf[k + 1]) * sc
         d2 = (xf[k + 2] - bf[k + 2]) * sc
         moved += not d0 * d0 + d1 * d1 + d2 * d2 <= limit2
-        differ += (d0 != 0.0) | (d1 != 0.0) | (d2 != 0.0)
-    if limit2 == 0.0:
-        moved += differ
     return 1 if moved else 0
 
 
