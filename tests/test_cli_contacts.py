@@ -162,6 +162,30 @@ class TestInfo:
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+    def test_damaged_file_is_one_line_naming_it(self, tmp_path, capsys):
+        """A file damaged after it was written (bytes of a compressed chunk changed):
+        one line naming the file, exit status 2, not a traceback."""
+        dump = tmp_path / "s.dump"
+        write_dump(dump, random_frames(50, 4, cell=lammps_cell(5, 5, 5), seed=2),
+                   columns=("id", "type", "diameter", "x", "y", "z"))
+        out = tmp_path / "s.h5"
+        assert main(["contacts", str(dump), "-o", str(out), "-q"]) == 0
+        with h5py.File(out, "r") as f:
+            d = f["frames/n_contacts"]
+            assert d.compression is not None
+            info = d.id.get_chunk_info(0)
+            at, size = info.byte_offset, info.size
+        data = bytearray(out.read_bytes())
+        for k in range(at, at + size):
+            data[k] ^= 0xFF
+        out.write_bytes(bytes(data))
+        capsys.readouterr()
+        assert main(["info", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(
+            f"granularsap info: error: {out}: damaged contacts file, HDF5 cannot read it"), err
+
+
 class TestErrors:
     def test_one_line_errors_and_exit_codes(self, tmp_path, capsys):
         dump = tmp_path / "e.dump"

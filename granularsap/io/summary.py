@@ -13,7 +13,24 @@ __all__ = ["plot", "summarize"]
 
 
 def summarize(path) -> dict:
-    """The summary ``granularsap info`` prints, as a dict (arrays per frame included)."""
+    """The summary ``granularsap info`` prints, as a dict (arrays per frame included).
+
+    Raises
+    ------
+    ValueError
+        Naming the file, when HDF5 cannot read what the summary needs (a file
+        damaged after it was written: a flipped byte in a header or a chunk).
+    """
+    try:
+        return _summarize(path)
+    except (KeyError, RuntimeError, OSError) as exc:
+        if isinstance(exc, (FileNotFoundError, PermissionError, IsADirectoryError)):
+            raise
+        raise ValueError(f"{os.fspath(path)}: damaged contacts file, HDF5 cannot read it: "
+                         f"{exc}") from exc
+
+
+def _summarize(path):
     import numpy as np
 
     from .hdf5 import ContactsFile
