@@ -682,19 +682,9 @@ class WallSearch:
             perpendicular to the periodic axes, moved vertices of another shape
             or making a degenerate triangle.
         """
-        x = as_coords(positions, "positions", check_finite=False)
+        x = as_coords(positions, "positions")
         n = len(x)
-        if (type(radii) is np.ndarray and radii.dtype == np.float64 and radii.shape == (n,)
-                and radii.flags.c_contiguous):
-            r = radii
-        else:
-            r = as_vector(radii, "radii", n)
-        # the checks of as_coords and as_vector in one pass (their messages)
-        bad_x, bad_r = _tri.bad_spheres(x, r)
-        if bad_x >= 0:
-            raise ValueError(f"positions must be finite, got NaN or inf in row {bad_x}")
-        if bad_r >= 0:
-            as_vector(r, "radii", n)  # raises what is wrong
+        r = as_vector(radii, "radii", n)
         cell = Cell.coerce(box, pbc=pbc, name="box")
         if cell is not None and not cell.any_periodic:
             cell = None

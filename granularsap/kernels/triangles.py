@@ -182,35 +182,6 @@ def sphere_boxes(x, h, top, guard, lower, upper):
 
 
 @jit
-def bad_spheres(x, r):
-    """The first row of ``x`` with a NaN or inf (or -1), and the first radius that
-    is NaN, inf or negative (or -1): one vectorised pass over each (a non-finite
-    value makes ``v * 0`` NaN), a second pass only to find the row."""
-    xf = x.reshape(-1)
-    acc = 0.0
-    for k in range(xf.shape[0]):
-        acc += xf[k] * 0.0
-    bad_x = -1
-    if acc != 0.0:
-        for i in range(x.shape[0]):
-            if not (x[i, 0] * 0.0 + x[i, 1] * 0.0 + x[i, 2] * 0.0) == 0.0:
-                bad_x = i
-                break
-    acc = 0.0
-    neg = 0
-    for i in range(r.shape[0]):
-        acc += r[i] * 0.0
-        neg += r[i] < 0.0
-    bad_r = -1
-    if acc != 0.0 or neg:
-        for i in range(r.shape[0]):
-            if not r[i] * 0.0 == 0.0 or r[i] < 0.0:
-                bad_r = i
-                break
-    return bad_x, bad_r
-
-
-@jit
 def kept_pairs_hold(x, x_built, h, h_built, margin):
     """Whether a broad phase built on ``x_built`` with reaches ``h_built`` (boxes
     grown by ``margin``) holds the pairs of ``x`` and ``h``: the reaches equal,
