@@ -611,11 +611,11 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
         "frames": _frames_text(slice(start, stop, step)),
         **params.describe(),
     }
-    stat = os.stat(trajectory)
+    # (its size is in the parameters; a file rewritten at the same size differs here)
     writer = ContactsWriter(output, described, distances=params.distances,
                             clumps=params.clumps, resume=resume,
                             commit_seconds=commit_seconds,
-                            source_stamp={"size": stat.st_size, "mtime_ns": stat.st_mtime_ns})
+                            source_stamp={"mtime_ns": os.stat(trajectory).st_mtime_ns})
     done = writer.n_frames
     if on_resume is not None:
         on_resume(done, writer.discarded_reason)
