@@ -229,6 +229,24 @@ class TestAgreement:
         assert harness.find_consensus({"a": (1, "x"), "b": (1, "x"), "c": (2, "y")}) \
             == ["a", "b"]
 
+    def test_small_frame_extension_measures_no_memory(self, monkeypatch):
+        # the planned runs reset and read the memory high-water mark; the added runs
+        # of a small frame do not (that slows the run after it)
+        measured = []
+
+        class Counting(harness._PeakRSS):
+            def __enter__(self):
+                measured.append(True)
+                return super().__enter__()
+
+        monkeypatch.setattr(harness, "_PeakRSS", Counting)
+        res = harness.run_peer(Fast(), SMALL["md-liquid"](), repeats=3, small_runs=40)
+        assert res.status == "ok"
+        assert len(res.times) == 40
+        assert len(measured) == 3  # the planned runs only (a stateless peer: no fresh call)
+        if harness.MEMORY_METHOD:
+            assert res.peak_rss_mb is not None
+
     def test_failing_peer_is_reported_not_fatal(self):
         class Raises(Brute):
             name = "raises"
