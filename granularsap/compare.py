@@ -8,7 +8,8 @@ through lammps_bridge (pair_style zero for a cutoff, a granular size list for
 radii), every candidate re-tested with d <= reach in float64 (README.md,
 "LAMMPS" says what LAMMPS counts).  mdanalysis: MDAnalysis.lib.distances.
 self_capped_distance, float32 inside; for radii its pairs within
-2 max(r) + skin, filtered with its own distances.  A differing pair whose
+2 max(r) + skin, filtered with its own distances; a partly periodic frame
+goes to it in a fully periodic stand-in cell (:func:`periodic_stand_in`).  A differing pair whose
 float64 distance lies within the reference's rounding of the cutoff is a tie.
 """
 
@@ -37,8 +38,9 @@ def _keys(pairs, n):
     return np.unique(a * n + b)
 
 
-def _pair_distances(positions, cell, keys, n):
-    """Float64 minimum-image distances of the pairs encoded in ``keys``."""
+def _pair_distances(positions, cell, pbc, keys, n):
+    """Float64 minimum-image distances of the pairs encoded in ``keys`` (images
+    along the periodic axes of ``pbc`` only)."""
     import numpy as np
 
     i, j = keys // n, keys % n
@@ -47,8 +49,10 @@ def _pair_distances(positions, cell, keys, n):
         return np.sqrt((d * d).sum(axis=1))
     inv = np.linalg.inv(cell)
     f = d @ inv
-    f -= np.rint(f)
-    shifts = np.array([[a, b, c] for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)],
+    periodic = np.asarray(pbc, dtype=bool)
+    f[:, periodic] -= np.rint(f[:, periodic])
+    steps = [(-1, 0, 1) if periodic[k] else (0,) for k in range(3)]
+    shifts = np.array([[a, b, c] for a in steps[0] for b in steps[1] for c in steps[2]],
                       dtype=np.float64)
     best = np.full(len(keys), np.inf)
     for s in shifts:
@@ -93,38 +97,70 @@ class _Setup:
 
 
 def _geometry(frame):
-    """(positions, cell or None) in the form granularsap takes."""
+    """(positions, cell or None, pbc) in the form granularsap takes: no cell for
+    a frame open along every axis."""
     import numpy as np
 
     pos = np.ascontiguousarray(frame.positions, dtype=np.float64)
-    pbc = np.asarray(frame.pbc, dtype=bool)
-    if frame.cell is None or not pbc.any():
-        return pos, None
-    if not pbc.all():
-        raise ValueError(f"frame {frame.index}: mixed periodicity {pbc.tolist()}: validate "
-                         "compares fully periodic or open frames (MDAnalysis has no partly "
-                         "periodic box); compare granularsap.neighbor_pairs and "
-                         "lammps_bridge.neighbor_pairs, which both take pbc, directly")
-    return pos, np.asarray(frame.cell, dtype=np.float64)
+    pbc = tuple(bool(f) for f in frame.pbc)
+    if frame.cell is None or not any(pbc):
+        return pos, None, (False, False, False)
+    return pos, np.asarray(frame.cell, dtype=np.float64), pbc
 
 
-def _run_granularsap(setup, pos, cell, radii):
+def _run_granularsap(setup, pos, cell, pbc, radii):
     import granularsap
 
     if setup.cutoff is not None:
-        return granularsap.neighbor_pairs(pos, setup.cutoff, box=cell, return_distances=False)
-    return granularsap.sphere_contacts(pos, radii, skin=setup.skin, box=cell)
+        return granularsap.neighbor_pairs(pos, setup.cutoff, box=cell, pbc=pbc,
+                                          return_distances=False)
+    return granularsap.sphere_contacts(pos, radii, skin=setup.skin, box=cell, pbc=pbc)
 
 
-def _run_lammps(setup, pos, cell, radii):
+def _run_lammps(setup, pos, cell, pbc, radii):
     import lammps_bridge
 
     if setup.cutoff is not None:
-        return lammps_bridge.neighbor_pairs(pos, setup.cutoff, cell)
-    return lammps_bridge.sphere_contacts(pos, radii, skin=setup.skin, box=cell)
+        return lammps_bridge.neighbor_pairs(pos, setup.cutoff, cell, pbc=pbc)
+    return lammps_bridge.sphere_contacts(pos, radii, skin=setup.skin, box=cell, pbc=pbc)
 
 
-def _run_mdanalysis(setup, pos, cell, radii):
+def periodic_stand_in(positions, cell, pbc, reach):
+    """A fully periodic cell with the same pairs within ``reach`` as the partly
+    periodic ``(cell, pbc)``, for a reference that has no open axes (MDAnalysis).
+
+    The periodic cell vectors are kept; each open one is replaced by a vector
+    normal to the periodic ones (and to the other open one) of length ``L =
+    2 (e + reach)``, ``e`` the particles' extent along it.  Two particles are
+    at most ``e`` apart along that normal, so every image across it is
+    farther than ``L - e > reach``: the pairs within ``reach`` are those with
+    images along the periodic axes only, as in ``(cell, pbc)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = np.array([[0.5, 0.5, 0.0], [0.5, 0.5, 9.0]])
+    >>> periodic_stand_in(x, 10.0 * np.eye(3), (True, True, False), 1.0).round(6).tolist()
+    [[10.0, 0.0, 0.0], [0.0, 10.0, 0.0], [0.0, 0.0, 20.0]]
+    """
+    import numpy as np
+
+    cell = np.array(cell, dtype=np.float64)
+    periodic = [k for k in range(3) if pbc[k]]
+    opened = [k for k in range(3) if not pbc[k]]
+    # the rows of vt past the periodic vectors' rank span their orthogonal complement
+    _, _, vt = np.linalg.svd(cell[periodic])
+    for normal, k in zip(vt[len(periodic):], opened, strict=True):
+        along = positions @ normal
+        extent = float(along.max() - along.min()) if len(positions) else 0.0
+        length = 2.0 * (extent + reach)
+        cell[k] = normal * (length if length > 0.0 else 1.0)
+    if np.linalg.det(cell) < 0.0:
+        cell[opened[-1]] *= -1.0
+    return cell
+
+
+def _run_mdanalysis(setup, pos, cell, pbc, radii):
     import numpy as np
 
     try:
@@ -132,10 +168,15 @@ def _run_mdanalysis(setup, pos, cell, radii):
     except ImportError as exc:
         raise ImportError("the mdanalysis reference needs MDAnalysis: "
                           "pip install granularsap[mda]") from exc
+    reach_max = setup.cutoff
+    if reach_max is None:
+        reach_max = 2.0 * float(radii.max()) + setup.skin if len(radii) else 0.0
     box = None
     if cell is not None:
         from .io import box_to_cell, cell_to_box
 
+        if not all(pbc):  # MDAnalysis has no partly periodic box
+            cell = periodic_stand_in(pos, cell, pbc, reach_max)
         box = cell_to_box(cell)
         std = box_to_cell(box)  # MDAnalysis's own orientation of that cell
         pos = pos @ np.linalg.solve(cell, std)
@@ -143,7 +184,6 @@ def _run_mdanalysis(setup, pos, cell, radii):
         pairs = self_capped_distance(pos, max_cutoff=setup.cutoff, box=box,
                                      return_distances=False)
         return np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    reach_max = 2.0 * float(radii.max()) + setup.skin if len(radii) else 0.0
     pairs, dist = self_capped_distance(pos, max_cutoff=reach_max, box=box)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     keep = dist <= radii[pairs[:, 0]] + radii[pairs[:, 1]] + setup.skin
@@ -205,8 +245,7 @@ def compare_trajectory(trajectory, *, against=REFERENCES, cutoff=None, radius_co
     Raises
     ------
     ValueError
-        ``frames`` selects no frame, the radius column is missing, a frame is
-        partly periodic.
+        ``frames`` selects no frame, the radius column is missing.
     """
     import numpy as np
 
@@ -227,25 +266,25 @@ def compare_trajectory(trajectory, *, against=REFERENCES, cutoff=None, radius_co
         if setup is None:
             setup = _Setup(cutoff, radius_column, skin, frame)
             say(f"{name}: {trajectory}: {setup.describe()}; against {', '.join(refs)}")
-        pos, cell = _geometry(frame)
+        pos, cell, pbc = _geometry(frame)
         n = len(pos)
         radii = setup.radii(frame) if setup.cutoff is None else None
         t0 = time.perf_counter()
-        mine = _keys(_run_granularsap(setup, pos, cell, radii), max(n, 1))
+        mine = _keys(_run_granularsap(setup, pos, cell, pbc, radii), max(n, 1))
         times = {"granularsap": time.perf_counter() - t0}
         row = [f"{frame.index:>5}", f"{frame.step if frame.step is not None else '-':>8}",
                f"{n:>6}", f"{len(mine):>11}"]
         frame_ties = 0
         for ref in refs:
             t0 = time.perf_counter()
-            theirs = _keys(_RUNNERS[ref](setup, pos, cell, radii), max(n, 1))
+            theirs = _keys(_RUNNERS[ref](setup, pos, cell, pbc, radii), max(n, 1))
             times[ref] = time.perf_counter() - t0
             only_mine = np.setdiff1d(mine, theirs, assume_unique=True)
             only_theirs = np.setdiff1d(theirs, mine, assume_unique=True)
             diff = np.concatenate([only_mine, only_theirs])
             n_ties = 0
             if len(diff):
-                d = _pair_distances(pos, cell, diff, max(n, 1))
+                d = _pair_distances(pos, cell, pbc, diff, max(n, 1))
                 reach = setup.reach(radii, diff, max(n, 1))
                 reach_arr = np.broadcast_to(np.asarray(reach, dtype=float), d.shape)
                 tol = _tie_tolerance(ref, pos, cell, float(reach_arr.max()))

@@ -152,11 +152,82 @@ class TestUsage:
         assert main(["validate", "no-such.dump", "--cutoff", "1"]) == 2
         assert "does not exist" in capsys.readouterr().err
 
-    def test_mixed_periodicity(self, tmp_path, capsys):
-        pos = np.array([[1.0, 1.0, 1.0], [2.0, 1.0, 1.0]])
+    def test_mixed_periodicity_pairs_across_periodic_faces_only(self, tmp_path, capsys):
+        # a pair across the periodic x face (d = 1), none across the open z face
+        # (z = 0.5 and 9.5 would be 1 apart through it)
+        pos = np.array([[0.5, 5.0, 0.5], [9.5, 5.0, 0.5], [5.0, 5.0, 9.5]])
         dump = _write_dump(tmp_path / "m.dump", [pos], bounds="pp pp ff")
-        assert main(["validate", dump, "--cutoff", "1.5"]) == 2
-        assert "mixed periodicity" in capsys.readouterr().err
+        assert main(["validate", dump, "--cutoff", "1.5"]) == 0
+        out = capsys.readouterr().out
+        row = out.splitlines()[2].split()  # granularsap, lammps, diff, mdanalysis, diff
+        assert row[3] == row[4] == row[6] == "1" and row[5] == row[7] == "+0/-0"
+        assert "identical" in out
+
+
+def _brute_force_mixed(pos, cell, pbc, reach):
+    """Pairs with some image (along the periodic axes, one cell either way) within
+    ``reach``: the oracle of a cell wider than twice the reach."""
+    steps = [(-1, 0, 1) if p else (0,) for p in pbc]
+    shifts = np.array([[a, b, c] for a in steps[0] for b in steps[1] for c in steps[2]],
+                      dtype=float) @ cell
+    n = len(pos)
+    d = pos[None, :, None, :] - pos[:, None, None, :] + shifts[None, None, :, :]
+    close = (np.sqrt((d * d).sum(axis=-1)) <= reach).any(axis=-1)
+    i, j = np.nonzero(np.triu(close, 1))
+    return n, len(i)
+
+
+@pytest.mark.parametrize("bounds, flags", [
+    ("xy xz yz pp pp ff", (True, True, False)),
+    ("xy xz yz pp ff pp", (True, False, True)),
+    ("xy xz yz ff pp ff", (False, True, False)),
+])
+def test_triclinic_mixed_periodicity_matches_both_references(tmp_path, capsys, bounds, flags):
+    # LAMMPS dump bounds of a triclinic box: xlo_bound xhi_bound xy, ... ; the cell is
+    # a = (lx, 0, 0), b = (xy, ly, 0), c = (xz, yz, lz)
+    rng = np.random.default_rng(7)
+    lx, ly, lz, xy, xz, yz = 9.0, 8.0, 10.0, 1.5, -2.0, 1.0
+    cell = np.array([[lx, 0, 0], [xy, ly, 0], [xz, yz, lz]])
+    frac = rng.random((300, 3))
+    frac[:, [not f for f in flags]] *= 1.3  # beyond the box along the open axes
+    pos = frac @ cell
+    xlo, ylo, zlo = 0.0, 0.0, 0.0
+    box = ((xlo + min(0, xy, xz, xy + xz), xlo + lx + max(0, xy, xz, xy + xz), xy),
+           (ylo + min(0, yz), ylo + ly + max(0, yz), xz), (zlo, zlo + lz, yz))
+    lines = ["ITEM: TIMESTEP", "0", "ITEM: NUMBER OF ATOMS", str(len(pos)),
+             f"ITEM: BOX BOUNDS {bounds}"]
+    lines += [f"{float(lo)!r} {float(hi)!r} {float(t)!r}" for lo, hi, t in box]
+    lines.append("ITEM: ATOMS id type x y z")
+    lines += [f"{k + 1} 1 {x!r} {y!r} {z!r}" for k, (x, y, z) in enumerate(pos.tolist())]
+    dump = tmp_path / "tri.dump"
+    dump.write_text("\n".join(lines) + "\n")
+    assert main(["validate", str(dump), "--cutoff", "1.7"]) == 0
+    out = capsys.readouterr().out
+    row = out.splitlines()[2].split()
+    _, expected = _brute_force_mixed(pos, cell, flags, 1.7)
+    assert expected > 50
+    assert row[3] == row[4] == row[6] == str(expected) and row[5] == row[7] == "+0/-0"
+
+
+@pytest.mark.parametrize("pbc", [(True, True, False), (True, False, False),
+                                 (False, True, False), (False, True, True)])
+def test_periodic_stand_in_keeps_the_pairs(pbc):
+    from granularsap.compare import periodic_stand_in
+
+    rng = np.random.default_rng(3)
+    cell = np.array([[6.0, 0.0, 0.0], [1.0, 5.0, 0.0], [-1.5, 2.0, 7.0]])
+    pos = rng.random((120, 3)) * 9.0 - 1.0
+    reach = 1.9
+    stand_in = periodic_stand_in(pos, cell, pbc, reach)
+    assert np.linalg.det(stand_in) > 0
+    for k in range(3):
+        if pbc[k]:
+            assert np.array_equal(stand_in[k], cell[k])
+    # every image of the stand-in one cell either way, against the partly periodic cell
+    expected = _brute_force_mixed(pos, cell, pbc, reach)
+    found = _brute_force_mixed(pos, stand_in, (True, True, True), reach)
+    assert found == expected
+    assert expected[1] > 20
 
     def test_radius_column_with_skin(self, tmp_path, capsys):
         pos = np.array([[1.0, 1.0, 1.0], [2.0, 1.0, 1.0], [5.0, 5.0, 5.0]])
