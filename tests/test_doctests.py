@@ -11,7 +11,7 @@ MODULES = ["granularsap.search", "granularsap.particles", "granularsap.api", "gr
            "granularsap.inputs", "granularsap.periodic", "granularsap.mda", "granularsap.ase",
            "granularsap.ase_neighborlist", "granularsap.mda_fastns", "granularsap._memory",
            "granularsap.io._lock", "granularsap.cli.argtypes", "granularsap.geometry",
-           "granularsap.sweep_candidates", "granularsap.search.plan"]
+           "granularsap.sweep_candidates", "granularsap.search.plan", "granularsap.compare"]
 
 
 @pytest.mark.parametrize("name", MODULES)
