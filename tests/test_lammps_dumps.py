@@ -106,6 +106,30 @@ def test_dump_cut_inside_its_last_number_is_truncated(lammps_run):
         list(iter_frames(head))
 
 
+@pytest.mark.parametrize("kept", range(1, len("ITEM: TIMESTEP\n")))
+def test_dump_cut_in_the_next_frames_first_line_keeps_the_frame_before(lammps_run, kept):
+    """A run killed while writing a frame's first line (``I`` ... ``ITEM: TIMESTE``) has
+    every frame before it complete: they are all read, and the error is the cut
+    frame's (a cut ``I`` to ``ITEM`` was taken for one atom row too many of the
+    frame before, which was then lost)."""
+    from granularsap.io import DumpFormatError, iter_frames
+
+    d, dump = lammps_run
+    text = dump.read_bytes()
+    at = text.rindex(b"ITEM: TIMESTEP")
+    n_frames = text.count(b"ITEM: TIMESTEP")
+    cut = d / f"cut{kept}.dump"
+    cut.write_bytes(text[:at + kept])
+    good = []
+    with pytest.raises(DumpFormatError, match=rf"frame {n_frames - 1}, line \d+: truncated"):
+        for fr in iter_frames(cut):
+            good.append(fr.index)
+    assert good == list(range(n_frames - 1))
+    # the reader of one frame (a Dask worker's) says the same of the frame before
+    last = list(iter_frames(cut, frames=slice(n_frames - 2, n_frames - 1)))
+    assert [fr.index for fr in last] == [n_frames - 2]
+
+
 def _edit_row(text, frame, row, column, value):
     """``text`` with one value of atom row ``row`` of frame ``frame`` replaced."""
     lines = text.splitlines(keepends=True)

@@ -319,6 +319,8 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
                 if line is None:
                     fail("file ends inside the frame header (truncated)")
                 text = line.strip()
+                if _cut_item(line):
+                    fail("truncated: the file ends in the middle of a header line")
                 if not text.startswith("ITEM:"):
                     if first_line:
                         fail(f"not a LAMMPS text dump: expected 'ITEM: TIMESTEP' on its first "
@@ -434,6 +436,13 @@ def _int_column(rows, k, path, index, first_row, name):
     return out
 
 
+def _cut_item(line):
+    """Whether ``line`` is the start of an ``ITEM:`` line cut by the end of the file
+    (``I`` to ``ITEM``, no end of line): the next frame's header, truncated."""
+    text = line.strip()
+    return bool(text) and not line.endswith("\n") and "ITEM:".startswith(text)
+
+
 def _after_rows(src, natoms, fail):
     """The first line after a frame's ``natoms`` atom rows that is not blank: the
     next frame's first header line, or None at the end of the file.  Anything
@@ -443,7 +452,7 @@ def _after_rows(src, natoms, fail):
     line = src.next()
     while line is not None and not line.strip():
         line = src.next()
-    if line is not None and not line.lstrip().startswith("ITEM:"):
+    if line is not None and not line.lstrip().startswith("ITEM:") and not _cut_item(line):
         fail(f"NUMBER OF ATOMS says {natoms} atom rows but more rows follow: "
              f"{line.strip()[:40]!r} after atom row {natoms}")
     return line
