@@ -64,6 +64,26 @@ class TestResults:
                                            np.full(N_ATOMS, 0.4))
         np.testing.assert_array_equal(c.results.pairs[0], sorted_pairs(want))
 
+    @pytest.mark.parametrize("pbc", [[True, True, False], (False, True, False),
+                                     np.array([False, False, False]), [1, 0, 1]])
+    def test_per_axis_pbc_equals_brute_force(self, universe, pbc):
+        # frame 0 is orthorhombic (12 x 12 x 12): images along the periodic axes only
+        c = Contacts(universe.atoms, cutoff=1.5, pbc=pbc).run(stop=1)
+        flags = np.asarray(pbc, dtype=bool)
+        pos = universe.trajectory[0].positions.astype(np.float64)
+        d = pos[None, :, :] - pos[:, None, :]
+        d[..., flags] -= 12.0 * np.round(d[..., flags] / 12.0)
+        i, j = np.nonzero(np.triu(np.sqrt((d * d).sum(axis=-1)) <= 1.5, k=1))
+        want = np.column_stack([i, j])
+        assert len(want) > 100
+        np.testing.assert_array_equal(c.results.pairs[0], want)
+
+    @pytest.mark.parametrize("pbc, error", [("yes", TypeError), ([True, False], ValueError),
+                                            (None, TypeError)])
+    def test_bad_pbc_is_refused_by_name(self, universe, pbc, error):
+        with pytest.raises(error, match="pbc must be a bool or three bools"):
+            Contacts(universe.atoms, cutoff=1.5, pbc=pbc)
+
 
 class TestBackends:
     def test_reexported_by_granularsap_mda(self):

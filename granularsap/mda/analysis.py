@@ -58,6 +58,20 @@ class _SpawnMultiprocessing(BackendMultiprocessing):
         return out
 
 
+def _as_pbc(pbc):
+    """``pbc`` of :class:`Contacts` as three bools: one bool for every axis, or one
+    per axis (the rule of ``granularsap.Cell``'s ``pbc``).
+
+    Examples
+    --------
+    >>> _as_pbc(True), _as_pbc([True, True, False])
+    ((True, True, True), (True, True, False))
+    """
+    from ..cell import _as_pbc as as_flags
+
+    return tuple(bool(f) for f in as_flags(pbc))
+
+
 class Contacts(AnalysisBase):
     """Contacts (or neighbour pairs) of an AtomGroup in every frame.
 
@@ -74,9 +88,11 @@ class Contacts(AnalysisBase):
         ``UpdatingAtomGroup``).  Exactly one of ``cutoff`` and ``radii``.
     skin : float, optional
         Added to ``r_i + r_j`` (sphere contacts only).
-    pbc : bool, optional
+    pbc : bool or three bools, optional
         Use the periodic box of each frame (default True; ignored when a
-        frame has no box).
+        frame has no box); three flags make it periodic along those axes only
+        (``[True, True, False]``: a slab, periodic along x and y, as
+        granularsap's ``pbc`` everywhere).
     return_distances : bool, optional
         Also keep each pair's distance.
     n_threads : int, optional
@@ -149,7 +165,7 @@ class Contacts(AnalysisBase):
         self.cutoff = cutoff
         self.radii = radii
         self.skin = float(skin)
-        self.pbc = bool(pbc)
+        self.pbc = _as_pbc(pbc)
         self.return_distances = bool(return_distances)
         self.n_threads = n_threads
 
@@ -204,15 +220,17 @@ class Contacts(AnalysisBase):
         import granularsap
 
         pos = self.atomgroup.positions.astype(np.float64).reshape(-1, 3)
-        box = self._ts.dimensions if self.pbc else None
+        box = self._ts.dimensions if any(self.pbc) else None
         if box is not None and not np.all(np.asarray(box[:3]) > 0):
             box = None
+        pbc = self.pbc if box is not None else None
         if self.cutoff is not None:
-            out = granularsap.neighbor_pairs(pos, self.cutoff, box=box, n_threads=self.n_threads,
+            out = granularsap.neighbor_pairs(pos, self.cutoff, box=box, pbc=pbc,
+                                             n_threads=self.n_threads,
                                              return_distances=self.return_distances)
         else:
             out = granularsap.sphere_contacts(pos, self._frame_radii(len(pos)),
-                                              skin=self.skin, box=box,
+                                              skin=self.skin, box=box, pbc=pbc,
                                               n_threads=self.n_threads,
                                               return_distances=self.return_distances)
         pairs, dist = out if self.return_distances else (out, None)
