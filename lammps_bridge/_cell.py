@@ -23,16 +23,19 @@ from granularsap import Cell
 from granularsap.inputs import as_coords
 
 
-def cell_from_box(box):
+def cell_from_box(box, pbc=None):
     """Return ``box`` as a ``(3, 3)`` float64 cell matrix (rows are cell vectors).
 
-    ``granularsap.Cell.coerce(box).matrix`` as a fresh array.
+    ``granularsap.Cell.coerce(box, pbc).matrix`` as a fresh array.
 
     Parameters
     ----------
     box : (6,) array_like of float, (3, 3) array_like of float or Cell
         MDAnalysis form ``[lx, ly, lz, alpha, beta, gamma]`` (degrees), an
         ASE-style cell matrix or a :class:`granularsap.Cell`.
+    pbc : three bools, optional
+        Periodic axes (default: those of ``box``, all for an array): a cell
+        vector of an open axis may be zero (an ASE slab).
 
     Raises
     ------
@@ -40,7 +43,7 @@ def cell_from_box(box):
         On a wrong shape, non-finite values, non-positive lengths, impossible
         angles or a degenerate (zero-volume) cell.
     """
-    return np.array(Cell.coerce(box, name="box").matrix)
+    return np.array(Cell.coerce(box, pbc=pbc, name="box").matrix)
 
 
 def as_pbc(pbc, box):

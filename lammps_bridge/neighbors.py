@@ -211,7 +211,7 @@ def _finish(ti, tj, dist, keep, return_distances, n):
 def _prepare(positions, box, pbc, reach):
     positions = as_coords(positions, "positions")
     flags = as_pbc(pbc, box)
-    cell = cell_from_box(box) if box is not None else np.eye(3)
+    cell = cell_from_box(box, flags) if box is not None else np.eye(3)
     scale = float(np.abs(positions).max()) if len(positions) else 0.0
     scale = max(scale, float(np.abs(cell).max()) if box is not None else 0.0, reach, 1.0)
     margin = _REL_MARGIN * scale

@@ -39,15 +39,19 @@ def brute_box_overlaps(lower, upper):
 def _image_ranges(pos, cell, pbc, reach_max):
     """Integer image ranges per cell vector that hold every image within
     ``reach_max`` of any point (generously: the points' span is added)."""
-    vol = abs(np.linalg.det(cell))
     span = np.ptp(pos, axis=0).max() if len(pos) else 0.0
     reps = []
     for k in range(3):
         if not pbc[k]:
             reps.append(range(0, 1))
             continue
-        other = np.cross(cell[(k + 1) % 3], cell[(k + 2) % 3])
-        width = vol / np.linalg.norm(other)
+        # the spacing of the lattice planes across vector k: its part normal to the
+        # other periodic vectors (an open axis's vector may be zero: an ASE slab)
+        others = np.array([cell[j] for j in range(3) if j != k and pbc[j]]).reshape(-1, 3)
+        v = cell[k]
+        if len(others):
+            v = v - others.T @ np.linalg.lstsq(others.T, v, rcond=None)[0]
+        width = np.linalg.norm(v)
         m = int(np.ceil((reach_max + 2 * span) / width)) + 1
         reps.append(range(-m, m + 1))
     return reps

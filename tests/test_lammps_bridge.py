@@ -24,6 +24,9 @@ BOXES = {
     "mixed-ppf": ([7.0, 8.0, 9.0, 75.0, 95.0, 100.0], (True, True, False)),
     "mixed-fpf": (np.array([[7.0, 0.0, 0.0], [3.0, 7.5, 0.0], [-2.5, 2.0, 8.0]]),
                   (False, True, False)),
+    # an ASE slab: the open axis's cell vector is zero
+    "slab-zero-vector": (np.array([[7.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, -1.5, 8.0]]),
+                         (True, False, True)),
 }
 
 
@@ -31,7 +34,7 @@ def _case(kind, seed, n=120):
     box, pbc = BOXES[kind]
     rng = np.random.default_rng(seed)
     pos = (rng.random((n, 3)) - 0.25) * 9.0  # partly outside the cell: must be wrapped
-    cell = cell_from_box(box) if box is not None else None
+    cell = cell_from_box(box, pbc) if box is not None else None
     flags = pbc if pbc is not None else (True, True, True)
     return pos, box, pbc, cell, flags
 
