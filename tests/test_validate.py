@@ -235,3 +235,20 @@ def test_periodic_stand_in_keeps_the_pairs(pbc):
         assert main(["validate", dump, "--skin", "0.1"]) == 0
         out = capsys.readouterr().out
         assert "sphere contacts d <= r_i + r_j + 0.1 (radii: radius)" in out
+
+
+def test_ase_slab_with_a_zero_open_vector_matches_both_references(tmp_path, capsys):
+    # ASE writes a slab's open axis as a zero cell vector
+    from ase import Atoms
+    from ase.io import write
+
+    rng = np.random.default_rng(0)
+    cell = np.array([[6.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, -1.5, 7.0]])
+    pos = rng.uniform(0.0, 5.0, (60, 3))
+    path = tmp_path / "slab.extxyz"
+    write(path, Atoms("Ar60", positions=pos, cell=cell, pbc=[True, False, True]))
+    assert main(["validate", str(path), "--cutoff", "2.0"]) == 0
+    row = capsys.readouterr().out.splitlines()[2].split()
+    _, expected = _brute_force_mixed(pos, cell, (True, False, True), 2.0)
+    assert expected > 100
+    assert row[3] == row[4] == row[6] == str(expected) and row[5] == row[7] == "+0/-0"
