@@ -28,13 +28,12 @@ import numpy as np
 from ._numba import get_threads, num_threads
 from ._validate import check_n_threads
 from .kernels import identity as kern
+from .kernels.radixsort import MAX_PASSES, RADIX
 
 __all__ = ["ContactIdentity", "PairIdentity", "as_ids"]
 
 #: below this many rows the serial kernels run (a parallel region costs more)
 _PARALLEL_MIN = 50000
-#: slots of the pair matching's hash table per part filled by one thread
-_PART_SLOTS = 4096
 _NO_SHIFTS = np.zeros((0, 3), np.int64)
 _NO_ROWS = np.zeros(0, np.int64)
 _NO_KEYS = np.zeros((0, 1), np.int64)
@@ -395,8 +394,7 @@ class PairIdentity(_Rows):
         self._hkeys = np.zeros(0, np.int64)
         self._hvals = np.zeros(0, np.int64)
         self._todo = None  # this call's pairs the in-step pass left
-        self._table = np.zeros((0, 3), np.int64)  # hash table of the previous rows left
-        self._slots = np.zeros(0, np.int64)  # their home slots in it
+        self._rest = None  # pass 2's sort buffers (rest_sort)
         self._clumps = None
         self.clump_pairs = None
         self._entries = None  # (list, entries) of the previous call, when increasing
@@ -625,21 +623,27 @@ class PairIdentity(_Rows):
         if not len(left) or not int(todo_counts.sum()):
             ended[:len(left)] = left
             return ended[:len(left)]
-        size = 1 << max(4, int(2 * len(left) - 1).bit_length())
-        if len(self._table) != size:
-            self._table = np.empty((size, 3), np.int64)
-        shift = 64 - (size.bit_length() - 1)
-        # the table in parts filled in parallel: a power of two of them, at most
-        # one per chunk and one per _PART_SLOTS slots
-        parts = 1
-        while 2 * parts <= chunks and size // (2 * parts) >= _PART_SLOTS:
-            parts *= 2
-        self._slots = _grow(self._slots, len(left), np.int64)
-        kernels.rest_table(prev_pairs, prev[1], self.shifts, left, shift, parts, self._slots,
-                           self._table)
-        kernels.match_rest(pairs, m, mapped, prev[2], self.shifts, shifts, jumps, prev_pairs,
-                           prev[1], bounds, todo, todo_counts, shift, parts, self._table, out,
-                           matched)
+        if prev[2] >= 2**32:
+            raise ValueError(f"contact identity follows up to 2**32 particles, the previous "
+                             f"call had {prev[2]}")
+        n_todo = int(todo_counts.sum())
+        rest = self._rest
+        if rest is None or rest[0].shape[1] < max(len(left), n_todo):
+            cap = max(len(left), n_todo)
+            cap += cap // 4 + 64
+            rest = self._rest = (np.empty((2, cap), np.uint64), np.empty((2, cap), np.int64),
+                                 np.empty((2, cap), np.uint64), np.empty((2, cap), np.int64),
+                                 np.empty((2, MAX_PASSES * RADIX), np.int64),
+                                 np.zeros(2, np.uint8))
+        keys, rows, scratch_keys, scratch_rows, counts, sorted_in = rest
+        kernels.rest_sort(pairs, m, mapped, prev[2], self.shifts, shifts, jumps, prev_pairs,
+                          prev[1], bounds, todo, todo_counts, left, keys, rows, scratch_keys,
+                          scratch_rows, counts, sorted_in)
+        done = [(keys[t], rows[t]) if sorted_in[t] else (scratch_keys[t], scratch_rows[t])
+                for t in range(2)]
+        kern.rest_merge(pairs, m, mapped, prev[2], self.shifts, shifts, jumps, prev_pairs,
+                        prev[1], done[0][0][:len(left)], done[0][1][:len(left)],
+                        done[1][0][:n_todo], done[1][1][:n_todo], out, matched)
         return ended[:kern.rest_ended(left, matched, ended)]
 
     # -------------------------------------------------------------- clumps

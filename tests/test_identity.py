@@ -27,9 +27,8 @@ CELL = np.eye(3) * L
 @pytest.fixture(params=[1, 2], ids=["1thread", "2threads"])
 def threads(request, monkeypatch):
     """1 or 2 numba threads, with the identity kernels chunked even on small inputs
-    (so that 2 threads really split the work, the hash tables of pass 2 too)."""
+    (so that 2 threads really split the work)."""
     monkeypatch.setattr(identity_module, "_PARALLEL_MIN", 0)
-    monkeypatch.setattr(identity_module, "_PART_SLOTS", 16)  # hash tables in parts too
     return request.param
 
 
@@ -283,10 +282,9 @@ class TestAgainstOracle:
         assert np.all(runs[0][0] >= 0)
 
 
-def test_shuffled_pairs_go_through_the_hash_table(threads):
+def test_shuffled_pairs_go_through_the_sorted_second_pass(threads):
     # pairs in a new order every call defeat pass 1's cursor: nearly all are
-    # matched by pass 2, its table filled in parts (the fixture makes them small,
-    # with probes that run into the next part's slots) and looked up in parallel
+    # matched by pass 2 (both lists sorted by code, one per thread, then merged)
     rng = np.random.default_rng(31)
     n = 3000
     universe = np.unique(np.sort(rng.integers(0, n, (20000, 2)), axis=1), axis=0)
