@@ -776,7 +776,8 @@ class WallSearch:
         """The work arrays of ``mesh_select`` for ``k`` candidate pairs, kept (grown
         by doubling): distances and points (k,), nine int64 arrays (k + 1,) (region,
         element, kind, feature id, f0, f1, group starts, offsets, order) and the
-        feature table of ``SLOTS`` rows per pair."""
+        feature table of ``SLOTS`` rows per pair (key, closest distance, lowest
+        kind, reporting row, closest face or edge contact)."""
         got = self._work.get("select")
         if got is None or got[0] < k:
             cap = max(k, 2 * (0 if got is None else got[0]), 16)
@@ -785,7 +786,7 @@ class WallSearch:
                 cap, np.empty(cap), np.empty((cap, 3)),
                 [np.empty(cap + 1, np.int64) for _ in range(9)],
                 (np.empty(slots, np.int64), np.empty(slots), np.empty(slots, np.int64),
-                 np.empty(slots, np.int64)))
+                 np.empty(slots, np.int64), np.empty(slots)))
         return got[1:]
 
     def _plane_arrays(self, planes, cell):

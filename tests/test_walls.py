@@ -342,6 +342,26 @@ class TestFlatTilings:
         np.testing.assert_array_equal(c.point[m][:, :2], x[touching, :2])
         assert_matches(c, oracle_contacts(x, r, v, f))
 
+    @pytest.mark.parametrize("hair", [1e-4, 1e-5, 1e-6, 1e-8, 1e-12])
+    @pytest.mark.parametrize("diagonal", [False, True])
+    def test_one_contact_a_hair_from_a_vertex(self, hair, diagonal):
+        # around an interior vertex the triangles the sphere's projection misses
+        # meet it at distances a hair's square apart: their closest points round
+        # onto their edges, within the tie tolerance of the one contact
+        v, f = grid_floor(4, 4)
+        if diagonal:  # the other diagonal in every square: six triangles per vertex
+            f = np.concatenate([np.stack([q[:, 0], q[:, 1], q[:, 3]], 1) for q in (
+                np.array([[a, b, c, d] for a, b, c in f[0::2] for d in [c - 1]]),)] + [
+                np.stack([q[:, 1], q[:, 2], q[:, 3]], 1) for q in (
+                    np.array([[a, b, c, c - 1] for a, b, c in f[0::2]]),)])
+        angles = np.linspace(0.0, 2.0 * np.pi, 72, endpoint=False)
+        x = np.column_stack((2.0 + hair * np.cos(angles), 2.0 + hair * np.sin(angles),
+                             np.full(72, 0.2)))
+        c = WallSearch([TriangleMesh(v, f)]).update(x, 0.3)
+        flat = WallSearch([Plane([0, 0, 0], [0, 0, 1])]).update(x, 0.3)
+        assert c.sphere.tolist() == list(range(72))
+        np.testing.assert_array_equal(c.distance, flat.distance)
+
     def test_coplanar_tiling_with_rotated_frame(self):
         rng = np.random.default_rng(4)
         v, f = grid_floor(6, 6, step=0.5)
@@ -628,6 +648,19 @@ class TestPeriodic:
         np.testing.assert_array_equal(c.distance[m], np.abs(x[touching, 2]))
         np.testing.assert_array_equal(c.point[m], np.column_stack((x[touching, :2],
                                                                      np.zeros(len(touching)))))
+
+    def test_seam_a_hair_from_a_vertex(self):
+        # on the seam (x = 0 = 4) a hair from the vertex (0, 2) = (4, 2), and around it
+        v, f = grid_floor(4, 4)
+        cell = Cell.from_dimensions([4, 4, 10, 90, 90, 90], pbc=(True, True, False))
+        angles = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+        ring = np.column_stack((4.0 + 1e-7 * np.cos(angles), 2.0 + 1e-7 * np.sin(angles),
+                                np.full(24, 0.2)))
+        x = np.concatenate([[[3.999999999, 2.0, 0.2], [-1e-12, 3.0, 0.2], [4.0, 2.0, 0.2]],
+                            ring])
+        c = WallSearch([TriangleMesh(v, f)]).update(x, 0.3, cell)
+        assert c.sphere.tolist() == list(range(len(x)))
+        np.testing.assert_allclose(c.distance, 0.2, rtol=0, atol=1e-15)
 
     def test_seam_edge_and_corner(self):
         v, f = grid_floor(4, 4)

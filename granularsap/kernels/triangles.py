@@ -253,10 +253,42 @@ def _probe(table, start, mask, bits, key):
     return u
 
 
+@ijit
+def _corner_slot(i, px, py, pz, tri, m, t, corners, f0, f1, dist, tol, hkey, hdist, hkind,
+                 hedge, h0, mask, bits):
+    """The edge point of row ``i`` at one of its edge's two vertices, within the tie
+    tolerance: -2 when it is dropped there (a face contact around that vertex, a
+    triangle around it closer by more than the tolerance, or another face or
+    edge contact around it closer at all), else the vertex's slot, where it is
+    reported once for the vertex; -1 when it is at neither vertex.  (A sphere
+    resting on a flat tiling a hair from a vertex meets the triangles around
+    the vertex at distances that differ by the square of that hair: the
+    closest points of those its projection misses lie on their edges, within
+    the tolerance of the one contact, a face or edge point of the triangle
+    under it, or at the same distance when the hair's square rounds away.)"""
+    for c in range(3):
+        v = corners[t, c]
+        if v != f0[i] and v != f1[i]:
+            continue
+        dx = px - tri[m, c, 0]
+        dy = py - tri[m, c, 1]
+        dz = pz - tri[m, c, 2]
+        if np.sqrt(dx * dx + dy * dy + dz * dz) > dist[i] + tol:
+            continue
+        key = 2 * v + 1
+        u = h0 + _probe(hkey, h0, mask, bits, key)
+        if hkey[u] != key:
+            continue
+        if hkind[u] == 0 or hdist[u] < dist[i] - tol or hedge[u] < dist[i]:
+            return np.int64(-2)
+        return np.int64(u)
+    return np.int64(-1)
+
+
 @pjit
 def mesh_select(cand, x, h, tie, tri, rows, shifts, corners, face_edges, edges,
                 tlo, thi, top, guard, dist, point, region, elem, kind, fid, f0, f1, gstart,
-                offsets, order, hkey, hdist, hkind, hbest):
+                offsets, order, hkey, hdist, hkind, hbest, hedge):
     """Narrow phase and de-duplication of one mesh, per sphere.
 
     ``cand`` (k, 2): (sphere, image triangle) pairs sorted by sphere (the
@@ -270,11 +302,14 @@ def mesh_select(cand, x, h, tie, tri, rows, shifts, corners, face_edges, edges,
     element, kind, feature and image shift, into ``order`` from the group's
     first row.  Returns the number of groups ``g`` (``gstart[:g + 1]`` their
     rows) and of kept contacts (``offsets[:g + 1]`` their exclusive prefix
-    sums).  ``hkey``, ``hdist``, ``hkind``, ``hbest``: scratch, ``SLOTS``
-    slots per candidate.  The rule (docs/walls.md): an edge or vertex point counts when no
+    sums).  ``hkey``, ``hdist``, ``hkind``, ``hbest``, ``hedge``: scratch,
+    ``SLOTS`` slots per candidate.  The rule (docs/walls.md): an edge or vertex point counts when no
     triangle around it is closer (by more than ``tie * h``) and none has a
     face contact (a vertex: nor an edge contact), once per edge or vertex
-    (its lowest triangle, then image).  Cost linear in the candidates (a
+    (its lowest triangle, then image); an edge point within ``tie * h`` of
+    one of its vertices counts as that vertex for the face and closer-triangle
+    rules, and only if no other face or edge contact around the vertex is
+    closer, and once per vertex (``_corner_slot``).  Cost linear in the candidates (a
     hash table per sphere) plus the sort of each sphere's kept rows.
     """
     k = cand.shape[0]
@@ -358,14 +393,17 @@ def mesh_select(cand, x, h, tie, tri, rows, shifts, corners, face_edges, edges,
                 for c in range(6):
                     key = 2 * face_edges[tj, c] if c < 3 else 2 * corners[tj, c - 3] + 1
                     u = h0 + _probe(hkey, h0, mask, bits, key)
+                    near = dist[j] if kj < 2 else np.inf
                     if hkey[u] < 0:
                         hkey[u] = key
                         hdist[u] = dist[j]
                         hkind[u] = kj
                         hbest[u] = -1
+                        hedge[u] = near
                     else:
                         hdist[u] = min(hdist[u], dist[j])
                         hkind[u] = min(hkind[u], kj)
+                        hedge[u] = min(hedge[u], near)
                     if c == own:
                         region[j] = u
             # 1 and 2: an edge or vertex point shadowed (a closer triangle around
@@ -379,6 +417,15 @@ def mesh_select(cand, x, h, tie, tri, rows, shifts, corners, face_edges, edges,
                 u = region[i]
                 if hdist[u] < dist[i] - tol or hkind[u] < kd:
                     continue
+                if kd == 1:
+                    corner = _corner_slot(i, px, py, pz, tri, cand[i, 1], elem[i], corners,
+                                          f0, f1, dist, tol, hkey, hdist, hkind, hedge, h0,
+                                          mask, bits)
+                    if corner == -2:
+                        continue
+                    if corner >= 0:  # reported once per vertex, as a vertex point is
+                        u = corner
+                        region[i] = u
                 c = hbest[u]
                 if c < 0 or elem[i] < elem[c] or (elem[i] == elem[c] and cand[i, 1] < cand[c, 1]):
                     hbest[u] = i
