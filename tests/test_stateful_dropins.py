@@ -164,6 +164,46 @@ class TestNeighborListAgainstASE:
         assert got.dtype == want.dtype == np.int8
         np.testing.assert_array_equal(got, want)
 
+    @pytest.mark.parametrize("self_interaction, bothways", [(False, True), (True, False),
+                                                            (False, False)])
+    def test_primitive_view_and_deprecated_counts(self, self_interaction, bothways):
+        # ASE users read nl.nl (get_connectivity_matrix(nl.nl), nl.nl.neighbors) and the
+        # deprecated nneighbors / npbcneighbors
+        import warnings
+
+        from ase.neighborlist import get_connectivity_matrix
+
+        atoms, cutoffs = _system(9, 14, "small", (True, True, False))
+        kw = dict(self_interaction=self_interaction, bothways=bothways)
+        theirs, ours = AseNeighborList(cutoffs, **kw), NeighborList(cutoffs, **kw)
+        theirs.update(atoms), ours.update(atoms)
+        np.testing.assert_array_equal(get_connectivity_matrix(ours.nl).toarray(),
+                                      get_connectivity_matrix(theirs.nl).toarray())
+        _assert_same_list(ours.nl, theirs.nl, len(atoms))
+        for a in range(len(atoms)):
+            got = sorted(zip(ours.nl.neighbors[a].tolist(),
+                             map(tuple, ours.nl.displacements[a].tolist()), strict=True))
+            want = sorted(zip(theirs.nl.neighbors[a].tolist(),
+                              map(tuple, theirs.nl.displacements[a].tolist()), strict=True))
+            assert got == want
+        assert ours.nl.nupdates == theirs.nl.nupdates == 1
+        assert ours.nl.bothways == bothways and ours.nl.self_interaction == self_interaction
+        np.testing.assert_array_equal(ours.nl.pbc, theirs.nl.pbc)
+        np.testing.assert_array_equal(ours.nl.coordinates, theirs.nl.coordinates)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)
+            assert ours.nneighbors == theirs.nneighbors
+            assert ours.npbcneighbors == theirs.npbcneighbors
+        with pytest.warns(FutureWarning, match="deprecated"):
+            assert ours.nneighbors >= 0
+        # the primitive's own update, as PrimitiveNeighborList.update(pbc, cell, coords)
+        moved = atoms.positions + 0.4
+        assert ours.nl.update(atoms.pbc, atoms.cell, moved) is theirs.nl.update(
+            atoms.pbc, atoms.cell, moved) is True
+        _assert_same_list(ours, theirs, len(atoms))
+        with pytest.raises(ValueError, match=r"coordinates must have shape \(14, 3\)"):
+            ours.nl.update(atoms.pbc, atoms.cell, moved[:3])
+
     def test_negative_index_and_types(self):
         atoms, cutoffs = _system(2, 10, "ortho", (True, True, True))
         nl = NeighborList(cutoffs)

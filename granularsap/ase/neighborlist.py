@@ -45,6 +45,8 @@ docs/stateful-dropins.md.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ..search import ContactSearch
@@ -106,6 +108,11 @@ class NeighborList:
     ----------
     nupdates : int
         Number of builds so far.
+    nl : object
+        The list as ASE's primitive list shows it (``neighbors`` and
+        ``displacements`` per atom, ``get_neighbors``, ``update(pbc, cell,
+        coordinates)``, ``cutoffs``, ``nupdates``, ...), as ASE's ``nl.nl``:
+        ``ase.neighborlist.get_connectivity_matrix(nl.nl)`` works.
     search : granularsap.ContactSearch
         The engine (``search.stats`` describes the last build).
 
@@ -153,6 +160,7 @@ class NeighborList:
         self.search = ContactSearch(skin=0.0, rebuild_margin=0.0, quantities="ijS",
                                     periodic_images="all", include_cutoff=False,
                                     n_threads=n_threads)
+        self.nl = _Primitive(self)
 
     # ------------------------------------------------------------------ update
     def update(self, atoms):
@@ -177,9 +185,16 @@ class NeighborList:
             if not hasattr(atoms, attr):
                 raise TypeError(f"atoms must be an ase.Atoms (missing .{attr}), got "
                                 f"{type(atoms).__name__}")
-        positions = np.array(atoms.positions, dtype=np.float64)
-        pbc = np.array(atoms.pbc, dtype=bool).reshape(3)
-        cell = np.array(atoms.get_cell(complete=True), dtype=np.float64).reshape(3, 3)
+        return self._update(atoms.pbc, atoms.get_cell(complete=True), atoms.positions,
+                            "atoms")
+
+    def _update(self, pbc, cell, positions, what):
+        positions = np.array(positions, dtype=np.float64)
+        pbc = np.array(pbc, dtype=bool).reshape(3)
+        cell = np.array(cell, dtype=np.float64).reshape(3, 3)
+        if what == "coordinates" and positions.shape != (len(self.cutoffs), 3):
+            raise ValueError(f"coordinates must have shape ({len(self.cutoffs)}, 3), one row "
+                             f"per cutoff, got {positions.shape}")
         if len(positions) != len(self.cutoffs):
             raise ValueError(f"atoms has {len(positions)} atoms but cutoffs has "
                              f"{len(self.cutoffs)} entries; give one cutoff per atom (a "
@@ -267,6 +282,27 @@ class NeighborList:
         lo, hi = self._start[a], self._start[a + 1]
         return self._second[lo:hi], self._offsets[lo:hi]
 
+    @property
+    def nneighbors(self):
+        """Number of neighbour pairs (ASE's deprecated property, same count)."""
+        warnings.warn("nneighbors is deprecated in ASE (3.24): count the rows of "
+                      "nl.neighbors instead", FutureWarning, stacklevel=2)
+        self._check_built()
+        count = len(self._second)
+        if self.self_interaction:
+            count -= len(self._start) - 1
+        return count // 2 if self.bothways else count
+
+    @property
+    def npbcneighbors(self):
+        """Number of neighbour pairs across the periodic boundary (ASE's
+        deprecated property, same count)."""
+        warnings.warn("npbcneighbors is deprecated in ASE (3.24): count the non-zero "
+                      "rows of nl.displacements instead", FutureWarning, stacklevel=2)
+        self._check_built()
+        count = int(self._offsets.any(axis=1).sum())
+        return count // 2 if self.bothways else count
+
     def get_connectivity_matrix(self, sparse=True):
         """``(n, n)`` int8 matrix with 1 where ``j`` is a neighbour of ``i``.
 
@@ -286,3 +322,56 @@ class NeighborList:
         matrix = np.zeros((n, n), dtype=np.int8)
         matrix[self._first, self._second] = 1
         return matrix
+
+
+class _Primitive:
+    """``NeighborList.nl``: the list as ASE's ``PrimitiveNeighborList`` shows it, for
+    code that reads ``nl.nl`` (``ase.neighborlist.get_connectivity_matrix(nl.nl)``,
+    ``nl.nl.neighbors``).  It shares the list of its ``NeighborList``."""
+
+    def __init__(self, owner):
+        self._owner = owner
+
+    def __getattr__(self, name):
+        if name in ("cutoffs", "skin", "sorted", "self_interaction", "bothways", "nupdates"):
+            return getattr(self._owner, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    @property
+    def pbc(self):
+        self._owner._check_built()
+        return self._owner._pbc
+
+    @property
+    def cell(self):
+        self._owner._check_built()
+        return self._owner._cell
+
+    @property
+    def coordinates(self):
+        self._owner._check_built()
+        return self._owner._positions
+
+    @property
+    def neighbors(self):
+        """Neighbour indices of every atom (a list of arrays)."""
+        nl = self._owner
+        nl._check_built()
+        start = nl._start
+        return [nl._second[start[a]:start[a + 1]] for a in range(len(start) - 1)]
+
+    @property
+    def displacements(self):
+        """Cell offsets of every atom's neighbours (a list of (m, 3) arrays)."""
+        nl = self._owner
+        nl._check_built()
+        start = nl._start
+        return [nl._offsets[start[a]:start[a + 1]] for a in range(len(start) - 1)]
+
+    def get_neighbors(self, a):
+        return self._owner.get_neighbors(a)
+
+    def update(self, pbc, cell, coordinates):
+        """Rebuild from ``pbc``, ``cell`` and ``coordinates`` if ASE would; return
+        whether it did (``PrimitiveNeighborList.update``)."""
+        return self._owner._update(pbc, cell, coordinates, "coordinates")
