@@ -645,3 +645,25 @@ class TestErrors:
 def test_docstring_examples():
     result = doctest.testmod(identity_module, optionflags=doctest.ELLIPSIS)
     assert result.failed == 0 and result.attempted > 0
+
+
+@pytest.mark.parametrize("margin", [0.0, 0.3])
+def test_results_are_read_only_with_identity(margin):
+    # the next call matches against these buffers: a script cannot change them
+    rng = np.random.default_rng(2)
+    x = rng.uniform(0, 6, (200, 3))
+    search = ContactSearch(rebuild_margin=margin, quantities="PdS", identity=True)
+    pairs, d, s = search.update(x, 0.5, ids=np.arange(200) + 7)
+    assert len(pairs) > 20
+    for arr in (pairs, d, s):
+        assert not arr.flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        pairs[0, 0] = 3
+    kept = pairs.copy()
+    rows = search.update(x, 0.5, ids=np.arange(200) + 7)[0]
+    np.testing.assert_array_equal(rows, kept)
+    np.testing.assert_array_equal(search.previous_rows, np.arange(len(kept)))
+    own = search.update(x, 0.5, ids=np.arange(200) + 7, copy=True)
+    assert all(arr.flags.writeable for arr in own)
+    plain = ContactSearch(rebuild_margin=margin).update(x, 0.5)
+    assert plain.flags.writeable  # no identity: nothing borrowed

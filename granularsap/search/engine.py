@@ -818,9 +818,15 @@ class SearchEngine:
     def _results(self, total):
         if self.layout == "csr":
             return self._out.csr(total, self._n, "d" in self.quantities)
-        if self._tracker is not None:
-            self._track(total)
-        return self._out.pick(total, self.quantities)
+        if self._tracker is None:
+            return self._out.pick(total, self.quantities)
+        self._track(total)
+        out = self._out.pick(total, self.quantities)
+        # the tracker matches the next call's pairs against these very buffers:
+        # read-only views, so that a script cannot change them under it
+        for arr in out:
+            arr.flags.writeable = False
+        return out
 
     # ------------------------------------------------------------ identity
     def _check_ids(self, ids, n):
