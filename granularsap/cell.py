@@ -30,7 +30,14 @@ MAX_FRACTIONAL = float(2**52)
 _LAMMPS_OPEN = {"f", "s", "m"}
 
 
-def _as_pbc(pbc, name="pbc"):
+def as_pbc(pbc, name="pbc"):
+    """``pbc`` as three bools: one bool (or 0/1) for every axis, or one per axis.
+
+    Examples
+    --------
+    >>> as_pbc([1, 0, 1]).tolist()
+    [True, False, True]
+    """
     arr = np.asarray(pbc)
     if arr.dtype.kind not in "biu":
         raise TypeError(f"{name} must be a bool or three bools, got dtype {arr.dtype}")
@@ -225,7 +232,7 @@ class Cell:
         if arr.shape != (3, 3):
             raise ValueError(f"{name} must be a (3, 3) matrix of cell vectors, got shape "
                              f"{arr.shape}")
-        flags = _as_pbc(pbc)
+        flags = as_pbc(pbc)
         # the shape test runs on every vector scaled by a power of two (exact) to a
         # largest entry in [0.5, 1): whether a cell is degenerate depends on its
         # angles only, not on its units or on how its edge lengths compare
@@ -355,8 +362,8 @@ class Cell:
             Argument name used in error messages.
         """
         if box is None:
-            if pbc is not None and _as_pbc(pbc).any():
-                raise ValueError(f"pbc={tuple(bool(p) for p in _as_pbc(pbc))} needs a {name}; "
+            if pbc is not None and as_pbc(pbc).any():
+                raise ValueError(f"pbc={tuple(bool(p) for p in as_pbc(pbc))} needs a {name}; "
                                  f"got {name}=None (give the cell, or pbc=False)")
             return None
         if isinstance(box, Cell):

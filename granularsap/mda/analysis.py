@@ -67,9 +67,9 @@ def _as_pbc(pbc):
     >>> _as_pbc(True), _as_pbc([True, True, False])
     ((True, True, True), (True, True, False))
     """
-    from ..cell import _as_pbc as as_flags
+    from ..cell import as_pbc
 
-    return tuple(bool(f) for f in as_flags(pbc))
+    return tuple(bool(f) for f in as_pbc(pbc))
 
 
 class Contacts(AnalysisBase):
