@@ -48,6 +48,33 @@ def as_pbc(pbc, name="pbc"):
     return np.array(arr, dtype=bool)
 
 
+def open_directions(periodic):
+    """Orthonormal directions normal to the periodic cell vectors ``periodic`` (rows,
+    zero to three of them, independent): one per open axis, for a box that needs a
+    vector along each (LAMMPS's, or a fully periodic stand-in).
+
+    Examples
+    --------
+    >>> open_directions(np.array([[2.0, 0.0, 0.0], [1.0, 3.0, 0.0]])).tolist()
+    [[0.0, 0.0, 1.0]]
+    >>> len(open_directions(np.zeros((0, 3))))
+    3
+    """
+    vecs = np.asarray(periodic, dtype=np.float64).reshape(-1, 3)
+    if len(vecs) == 0:
+        return np.eye(3)
+    if len(vecs) == 1:
+        a = vecs[0] / np.linalg.norm(vecs[0])
+        e = np.eye(3)[int(np.argmin(np.abs(a)))]
+        u1 = e - (e @ a) * a
+        u1 /= np.linalg.norm(u1)
+        return np.array([u1, np.cross(a, u1)])
+    if len(vecs) == 2:
+        u = np.cross(vecs[0], vecs[1])
+        return (u / np.linalg.norm(u))[None, :]
+    return np.zeros((0, 3))
+
+
 def _real_array(x, name):
     arr = np.asarray(x)
     if arr.dtype.kind not in "fiu":

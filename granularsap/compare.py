@@ -130,8 +130,9 @@ def periodic_stand_in(positions, cell, pbc, reach):
     periodic ``(cell, pbc)``, for a reference that has no open axes (MDAnalysis).
 
     The periodic cell vectors are kept; each open one is replaced by a vector
-    normal to the periodic ones (and to the other open one) of length ``L =
-    2 (e + reach)``, ``e`` the particles' extent along it.  Two particles are
+    normal to the periodic ones (and to the other open one,
+    :func:`granularsap.cell.open_directions`, as LAMMPS's box gets) of length
+    ``L = 2 (e + reach)``, ``e`` the particles' extent along it.  Two particles are
     at most ``e`` apart along that normal, so every image across it is
     farther than ``L - e > reach``: the pairs within ``reach`` are those with
     images along the periodic axes only, as in ``(cell, pbc)``.
@@ -145,12 +146,12 @@ def periodic_stand_in(positions, cell, pbc, reach):
     """
     import numpy as np
 
+    from .cell import open_directions
+
     cell = np.array(cell, dtype=np.float64)
     periodic = [k for k in range(3) if pbc[k]]
     opened = [k for k in range(3) if not pbc[k]]
-    # the rows of vt past the periodic vectors' rank span their orthogonal complement
-    _, _, vt = np.linalg.svd(cell[periodic])
-    for normal, k in zip(vt[len(periodic):], opened, strict=True):
+    for normal, k in zip(open_directions(cell[periodic]), opened, strict=True):
         along = positions @ normal
         extent = float(along.max() - along.min()) if len(positions) else 0.0
         length = 2.0 * (extent + reach)

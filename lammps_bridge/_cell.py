@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from granularsap import Cell
+from granularsap.cell import open_directions
 from granularsap.inputs import as_coords
 
 
@@ -111,21 +112,8 @@ def lammps_frame(positions, cell, pbc, margin):
     positions = as_coords(positions, "positions")
     periodic = [k for k in range(3) if pbc[k]]
     vecs = [cell[k].copy() for k in periodic]
-    # orthonormal directions for the open axes
-    basis = []
-    if len(vecs) == 0:
-        basis = [np.eye(3)[k] for k in range(3)]
-    elif len(vecs) == 1:
-        a = vecs[0] / np.linalg.norm(vecs[0])
-        e = np.eye(3)[int(np.argmin(np.abs(a)))]
-        u1 = e - (e @ a) * a
-        u1 /= np.linalg.norm(u1)
-        basis = [u1, np.cross(a, u1)]
-    elif len(vecs) == 2:
-        u = np.cross(vecs[0], vecs[1])
-        basis = [u / np.linalg.norm(u)]
     origin = np.zeros(3)
-    for u in basis:
+    for u in open_directions(np.array(vecs).reshape(-1, 3)):
         s = positions @ u if len(positions) else np.zeros(1)
         lo, hi = float(s.min()) - margin, float(s.max()) + margin
         vecs.append((hi - lo) * u)
