@@ -352,21 +352,22 @@ class _Primitive:
         self._owner._check_built()
         return self._owner._positions
 
-    @property
-    def neighbors(self):
-        """Neighbour indices of every atom (a list of arrays)."""
+    def _per_atom(self, rows):
+        """``rows`` of the list cut into one view per atom."""
         nl = self._owner
         nl._check_built()
         start = nl._start
-        return [nl._second[start[a]:start[a + 1]] for a in range(len(start) - 1)]
+        return [rows[start[a]:start[a + 1]] for a in range(len(start) - 1)]
+
+    @property
+    def neighbors(self):
+        """Neighbour indices of every atom (a list of arrays)."""
+        return self._per_atom(self._owner._second)
 
     @property
     def displacements(self):
         """Cell offsets of every atom's neighbours (a list of (m, 3) arrays)."""
-        nl = self._owner
-        nl._check_built()
-        start = nl._start
-        return [nl._offsets[start[a]:start[a + 1]] for a in range(len(start) - 1)]
+        return self._per_atom(self._owner._offsets)
 
     def get_neighbors(self, a):
         return self._owner.get_neighbors(a)
