@@ -601,8 +601,8 @@ class PairIdentity(_Rows):
 
     def _match(self, pairs, m, prev, shifts, jumps, out, matched, kernels, chunks, sets):
         """The general matching (``kernels/identity.py``): pass 1 follows the
-        previous list with a cursor, pass 2 matches what it left through a hash
-        table of the previous rows left.  Returns the ended rows."""
+        previous list with a cursor, pass 2 matches what it left against the
+        previous rows it left, both sorted by pair.  Returns the ended rows."""
         k = len(pairs)
         prev_pairs = prev[0]
         k_prev = len(prev_pairs)
@@ -617,16 +617,16 @@ class PairIdentity(_Rows):
         step(pairs, m, prev[2], shifts, jumps, prev_pairs, prev[1], bounds, reach, out, matched,
              todo, todo_counts)
         left = self._unmatched(matched, k_prev, chunks, kernels, sets, "left")
-        self._last_counts = (int(todo_counts.sum()), len(left))
+        n_todo = int(todo_counts.sum())
+        self._last_counts = (n_todo, len(left))
         sets["ended"] = _grow(sets.get("ended"), len(left), np.int64)
         ended = sets["ended"]
-        if not len(left) or not int(todo_counts.sum()):
+        if not len(left) or not n_todo:
             ended[:len(left)] = left
             return ended[:len(left)]
         if prev[2] >= 2**32:
             raise ValueError(f"contact identity follows up to 2**32 particles, the previous "
                              f"call had {prev[2]}")
-        n_todo = int(todo_counts.sum())
         rest = self._rest
         if rest is None or rest[0].shape[1] < max(len(left), n_todo):
             cap = max(len(left), n_todo)
@@ -637,8 +637,8 @@ class PairIdentity(_Rows):
                                  np.zeros(2, np.uint8))
         keys, rows, scratch_keys, scratch_rows, counts, sorted_in = rest
         kernels.rest_sort(pairs, m, mapped, prev[2], self.shifts, shifts, jumps, prev_pairs,
-                          prev[1], bounds, todo, todo_counts, left, keys, rows, scratch_keys,
-                          scratch_rows, counts, sorted_in)
+                          prev[1], bounds, todo, todo_counts, n_todo, left, keys, rows,
+                          scratch_keys, scratch_rows, counts, sorted_in)
         done = [(keys[t], rows[t]) if sorted_in[t] else (scratch_keys[t], scratch_rows[t])
                 for t in range(2)]
         kern.rest_merge(pairs, m, mapped, prev[2], self.shifts, shifts, jumps, prev_pairs,

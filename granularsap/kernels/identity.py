@@ -384,17 +384,14 @@ def _rest_todo(pairs, m, mapped, n_prev, with_shift, shifts, jumps, bounds, todo
 
 @pjit
 def rest_sort(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, prev_shifts,
-              bounds, todo, todo_counts, left, keys, rows, scratch_keys, scratch_rows, counts,
-              sorted_in):
+              bounds, todo, todo_counts, n_todo, left, keys, rows, scratch_keys, scratch_rows,
+              counts, sorted_in):
     """Pass 2 of the pair matching, its first half: the codes (``_pair_code``) of the
-    previous rows pass 1 left (``keys[0]``, ``rows[0]``: ``left``) and of the rows
-    it did not find (``keys[1]``, ``rows[1]``: ``todo``), each sorted by code (a
-    stable radix sort, one list per thread).  ``sorted_in[t]`` is 1 when list
-    ``t`` came out in ``keys[t]``, 0 when in ``scratch_keys[t]``."""
+    previous rows pass 1 left (``keys[0]``, ``rows[0]``: ``left``) and of the
+    ``n_todo`` rows it did not find (``keys[1]``, ``rows[1]``: ``todo``), each
+    sorted by code (a stable radix sort, one list per thread).  ``sorted_in[t]``
+    is 1 when list ``t`` came out in ``keys[t]``, 0 when in ``scratch_keys[t]``."""
     n_left = left.shape[0]
-    n_todo = 0
-    for c in range(bounds.shape[0] - 1):
-        n_todo += todo_counts[c]
     for t in numba.prange(2):
         size = n_left if t == 0 else n_todo
         if t == 0:
