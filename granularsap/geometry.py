@@ -66,7 +66,7 @@ class FrameCell:
 
     __slots__ = ("cell", "pbc", "matrix", "diag", "hinv", "widths", "key", "narrowest",
                  "magnitude", "fine", "min_periodic_width", "det", "all_periodic",
-                 "any_periodic")
+                 "any_periodic", "open_lengths")
 
     def __init__(self, cell, pbc):
         """From a full, valid matrix (or None) and its pbc: use :meth:`of`."""
@@ -81,6 +81,8 @@ class FrameCell:
         matrix = cell if cell is not None else np.eye(3)
         self.matrix = matrix
         self.diag = not np.any(matrix - np.diag(np.diag(matrix)))
+        #: |matrix[c, c]| of each open axis, 0.0 for a periodic one (Python floats)
+        self.open_lengths = tuple(0.0 if pbc[c] else abs(float(matrix[c, c])) for c in range(3))
         self.hinv = np.ascontiguousarray(np.linalg.inv(matrix)) if not self.diag else np.eye(3)
         self.widths = widths_of(matrix)
         self.key = matrix.tobytes() + pbc.tobytes()

@@ -415,7 +415,7 @@ class PairIdentity(_Rows):
             return self._match_ids(_NO_ROWS, ids)  # checks that they are unique
         if ids is None or prev_ids is None:
             return None
-        if len(ids) == len(prev_ids) and np.array_equal(ids, prev_ids):
+        if len(ids) == len(prev_ids) and kern.same_ids(ids, prev_ids):
             return None
         return self._match_ids(prev_ids, ids)
 
@@ -544,6 +544,8 @@ class PairIdentity(_Rows):
                 self.matched_by = "pairs"
                 jumps = (self._jumps(positions, cell, pbc, m, prev) if self.shifts
                          else _NO_SHIFTS)
+                if chunks == 1:
+                    return self._match_one(pairs, m, prev, shifts, jumps, out, sets)
                 return self._match(pairs, m, prev, shifts, jumps, out, matched, kernels, chunks,
                                    sets)
 
@@ -627,15 +629,8 @@ class PairIdentity(_Rows):
         if prev[2] >= 2**32:
             raise ValueError(f"contact identity follows up to 2**32 particles, the previous "
                              f"call had {prev[2]}")
-        rest = self._rest
-        if rest is None or rest[0].shape[1] < max(len(left), n_todo):
-            cap = max(len(left), n_todo)
-            cap += cap // 4 + 64
-            rest = self._rest = (np.empty((2, cap), np.uint64), np.empty((2, cap), np.int64),
-                                 np.empty((2, cap), np.uint64), np.empty((2, cap), np.int64),
-                                 np.empty((2, MAX_PASSES * RADIX), np.int64),
-                                 np.zeros(2, np.uint8))
-        keys, rows, scratch_keys, scratch_rows, counts, sorted_in = rest
+        keys, rows, scratch_keys, scratch_rows, counts, sorted_in = self._rest_buffers(
+            max(len(left), n_todo))
         kernels.rest_sort(pairs, m, mapped, prev[2], self.shifts, shifts, jumps, prev_pairs,
                           prev[1], bounds, todo, todo_counts, n_todo, left, keys, rows,
                           scratch_keys, scratch_rows, counts, sorted_in)
@@ -645,6 +640,48 @@ class PairIdentity(_Rows):
                         prev[1], done[0][0][:len(left)], done[0][1][:len(left)],
                         done[1][0][:n_todo], done[1][1][:n_todo], out, matched)
         return ended[:kern.rest_ended(left, matched, ended)]
+
+    def _rest_buffers(self, cap):
+        """Pass 2's sort buffers (``rest_sort``), kept, with room for ``cap`` rows
+        in each of its two lists."""
+        rest = self._rest
+        if rest is None or rest[0].shape[1] < cap:
+            cap += cap // 4 + 64
+            rest = self._rest = (np.empty((2, cap), np.uint64), np.empty((2, cap), np.int64),
+                                 np.empty((2, cap), np.uint64), np.empty((2, cap), np.int64),
+                                 np.empty((2, MAX_PASSES * RADIX), np.int64),
+                                 np.zeros(2, np.uint8))
+        return rest
+
+    def _match_one(self, pairs, m, prev, shifts, jumps, out, sets):
+        """``_match`` of one chunk in two serial kernel calls, pass 1 and then the
+        rest (``rest_one``): a small call's matching without Python steps
+        between its parts.  Returns the ended rows."""
+        k = len(pairs)
+        prev_pairs = prev[0]
+        k_prev = len(prev_pairs)
+        self._todo = todo = _grow(self._todo, k, np.int64)
+        sets["left"] = left = _grow(sets.get("left"), k_prev, np.int64)
+        sets["ended"] = ended = _grow(sets.get("ended"), k_prev, np.int64)
+        keys, rows, scratch_keys, scratch_rows, counts, _ = self._rest_buffers(max(k, k_prev))
+        flags = sets["matched"][:k_prev + (-k_prev) % 8]  # (as _matched zeroed and padded it)
+        mapped = m is not None
+        m = m if mapped else _NO_ROWS
+        todo_counts = np.zeros(1, np.int64)
+        step = getattr(kern.serial, "match_in_step" + ("_ids" if mapped else "")
+                       + ("_shifts" if self.shifts else ""))
+        step(pairs, m, prev[2], shifts, jumps, prev_pairs, prev[1], np.array([0, k], np.int64),
+             int(min(k_prev, 4096 + 2 * abs(k - k_prev))), out, flags[:k_prev], todo,
+             todo_counts)
+        n_todo = int(todo_counts[0])
+        n_ended, n_left = kern.rest_one(pairs, m, mapped, prev[2], self.shifts, shifts, jumps,
+                                        prev_pairs, prev[1], n_todo, out, flags, todo, left,
+                                        keys, rows, scratch_keys, scratch_rows, counts, ended)
+        self._last_counts = (n_todo, int(n_left))
+        if n_ended < 0:
+            raise ValueError(f"contact identity follows up to 2**32 particles, the previous "
+                             f"call had {prev[2]}")
+        return ended[:n_ended]
 
     # -------------------------------------------------------------- clumps
     def _track_clumps(self, pairs, labels):

@@ -171,6 +171,43 @@ def test_what_rebuilds_the_list(change, reason):
     assert cl.stats["builds"] == before + 1
 
 
+
+@pytest.mark.parametrize("change, reason", [
+    ("radius", "radii"), ("ids", "ids"), ("moved", "moved"),
+    ("in place", "moved"), ("float32", "moved"), ("nan", None)])
+def test_what_rebuilds_a_list_of_plain_arrays(change, reason):
+    # float64 and int64 arrays without a cell or labels: one kernel call decides
+    rng = np.random.default_rng(6)
+    x = rng.uniform(0, L, (60, 3))
+    r = np.full(60, 0.4)
+    ids = np.arange(60) + 100
+    cl = ContactList(rebuild_margin=0.2)
+    cl.update(x, r, ids=ids)
+    cl.update(x.copy(), r.copy(), ids=ids.copy())
+    assert not cl.rebuilt and cl.stats["reason"] is None
+    y, rr, ii = x.copy(), r.copy(), ids.copy()
+    if change == "radius":
+        rr[7] = 0.41
+    elif change == "ids":
+        ii[[3, 4]] = ii[[4, 3]]
+    elif change == "moved":
+        y[9, 2] += 0.1001
+    elif change == "in place":  # the list keeps a copy of the positions it was built on
+        x[9, 2] += 0.1001
+        y = x
+    elif change == "float32":  # another dtype takes the checks, with the same answer
+        y = (x + np.float32(0.25)).astype(np.float32)
+    else:
+        y[4, 1] = np.nan
+        with pytest.raises(ValueError, match="positions must be finite.*row 4"):
+            cl.update(y, rr, ids=ii)
+        return
+    cl.update(y, rr, ids=ii)
+    assert cl.rebuilt and cl.stats["reason"] == reason
+    cl.update(y, rr, ids=ii)
+    assert not cl.rebuilt
+
+
 def test_results_survive_the_next_call():
     frames = walk(8, 30, 200, step=0.05)
     cl = ContactList(rebuild_margin=0.2)

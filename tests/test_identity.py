@@ -641,6 +641,16 @@ class TestErrors:
         with pytest.raises(ValueError, match="shifts must be given"):
             PairIdentity(shifts=True).update(np.zeros((1, 2), np.int64), 2)
 
+    def test_more_than_2_to_the_32_particles(self):
+        # pass 2 codes a pair by its two previous rows in one uint64
+        track = PairIdentity(n_threads=1)
+        track.update(np.array([[0, 1], [1, 2]]), 2**32)
+        with pytest.raises(ValueError, match="up to 2\\*\\*32 particles"):
+            track.update(np.array([[0, 3], [1, 2]]), 2**32)
+        track = PairIdentity(n_threads=1)
+        track.update(np.array([[0, 1], [1, 2]]), 2**32 - 1)
+        assert track.update(np.array([[0, 3], [1, 2]]), 2**32 - 1).tolist() == [-1, 1]
+
 
 def test_docstring_examples():
     result = doctest.testmod(identity_module, optionflags=doctest.ELLIPSIS)

@@ -95,6 +95,15 @@ def map_ids_dense(prev_ids, ids, lo, table, m):
     return -1, -1
 
 
+
+@jit
+def same_ids(ids, prev_ids):
+    """Whether two id arrays of one length are equal, row for row."""
+    for a in range(ids.shape[0]):
+        if ids[a] != prev_ids[a]:
+            return False
+    return True
+
 @ijit
 def _slot(key, mask, shift):
     return np.int64((np.uint64(key) * _MIX) >> shift) & mask
@@ -464,6 +473,46 @@ def rest_ended(left, matched, ended):
             ended[e] = q
             e += 1
     return e
+
+
+
+@jit
+def rest_one(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, prev_shifts,
+             n_todo, prev_rows, flags, todo, left, keys, rows, scratch_keys, scratch_rows,
+             counts, ended):
+    """What follows pass 1 in a small call, in one serial kernel: the previous rows
+    pass 1 left (``unmatched_into``), pass 2 on them and the ``n_todo`` rows of
+    ``todo`` it did not find (``rest_sort`` one list after the other,
+    ``rest_merge``), and the rows that ended (``rest_ended``).  ``flags``:
+    ``matched`` as pass 1 left it, padded as ``unmatched_words`` reads it;
+    ``left`` has room for every previous row, ``keys`` ... ``scratch_rows`` (2,
+    >= both counts) and ``counts`` are ``rest_sort``'s.  Returns (rows ended,
+    -1 when pass 2 has work but ``n_prev`` is 2**32 or more: nothing written
+    that counts; previous rows pass 1 left)."""
+    n_left = unmatched_into(flags, left)
+    if n_left == 0 or n_todo == 0:
+        for i in range(n_left):
+            ended[i] = left[i]
+        return n_left, n_left
+    if n_prev >= np.int64(2) ** 32:
+        return np.int64(-1), n_left
+    bounds = np.zeros(2, np.int64)
+    bounds[1] = n_todo
+    todo_counts = np.full(1, n_todo, np.int64)
+    _rest_left(prev_pairs, prev_shifts, with_shift, n_prev, left[:n_left], keys[0], rows[0])
+    _rest_todo(pairs, m, mapped, n_prev, with_shift, shifts, jumps, bounds, todo, todo_counts,
+               keys[1], rows[1])
+    in_left = radix_segment(keys[0], rows[0], scratch_keys[0], scratch_rows[0], np.int64(0),
+                            n_left, counts[0])
+    in_todo = radix_segment(keys[1], rows[1], scratch_keys[1], scratch_rows[1], np.int64(0),
+                            n_todo, counts[1])
+    kl = keys[0, :n_left] if in_left else scratch_keys[0, :n_left]
+    rl = rows[0, :n_left] if in_left else scratch_rows[0, :n_left]
+    kt = keys[1, :n_todo] if in_todo else scratch_keys[1, :n_todo]
+    rt = rows[1, :n_todo] if in_todo else scratch_rows[1, :n_todo]
+    rest_merge(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, prev_shifts,
+               kl, rl, kt, rt, prev_rows, flags)
+    return rest_ended(left[:n_left], flags, ended), n_left
 
 
 @pjit

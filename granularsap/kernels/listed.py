@@ -20,8 +20,29 @@ import numba
 from .._numba import ijit, jit, pjit, serial_twin
 from .common import separation_between
 
-__all__ = ["kept_list_state", "separations", "separations_serial"]
+__all__ = ["keep_build", "kept_list_state", "separations", "separations_serial"]
 
+
+
+@jit
+def keep_build(x, radii, ids, x_keep, radii_keep, ids_keep):
+    """Copy a build's positions, radii and ids (``ids`` may be empty) into the
+    kept arrays, in one pass; returns (largest |coordinate|, largest radius),
+    0.0 for no rows (what the displacement limit needs of them)."""
+    xf = x.reshape(-1)
+    kf = x_keep.reshape(-1)
+    big = 0.0
+    for k in range(xf.shape[0]):
+        v = xf[k]
+        kf[k] = v
+        big = max(big, abs(v))
+    rmax = 0.0
+    for s in range(radii.shape[0]):
+        radii_keep[s] = radii[s]
+        rmax = max(rmax, radii[s])
+    for s in range(ids.shape[0]):
+        ids_keep[s] = ids[s]
+    return big, rmax
 
 @jit
 def kept_list_state(x, x_built, radii, radii_built, ids, ids_built, sc, limit2):

@@ -722,15 +722,18 @@ class SearchEngine:
             return None
         span = 1.0
         if not cs.all_periodic:
-            open_axes = ~cs.pbc
             scan = self._scan_now
-            with np.errstate(over="ignore", under="ignore"):
-                if cs.diag and scan is not None:
-                    # the extents the frame's scan found (positions unscaled)
-                    for c in range(3):
-                        if open_axes[c]:
-                            span *= scan[7][c] / abs(float(cs.matrix[c, c]))
-                else:
+            if cs.diag and scan is not None:
+                # the extents the frame's scan found (positions unscaled), in Python
+                # floats (a DEM loop's rebuild comes here with cold caches, where
+                # each NumPy call costs microseconds)
+                for c in range(3):
+                    length = cs.open_lengths[c]
+                    if length:
+                        span *= float(scan[7][c]) / length
+            else:
+                open_axes = ~cs.pbc
+                with np.errstate(over="ignore", under="ignore"):
                     if cs.diag:
                         frac = positions[:, open_axes] / np.diag(cs.matrix)[open_axes]
                     else:  # (a sum of products, not a BLAS product: no BLAS threads)
