@@ -37,6 +37,10 @@ _PARALLEL_MIN = 50000
 _NO_SHIFTS = np.zeros((0, 3), np.int64)
 _NO_ROWS = np.zeros(0, np.int64)
 _NO_KEYS = np.zeros((0, 1), np.int64)
+#: pass 2's buffers before it first has work (``PairIdentity._rest_buffers``)
+_NO_REST = (np.zeros((2, 0), np.uint64), np.zeros((2, 0), np.int64),
+            np.zeros((2, 0), np.uint64), np.zeros((2, 0), np.int64),
+            np.zeros((2, 0), np.int64))
 
 
 def as_ids(ids, n, name="ids"):
@@ -160,7 +164,11 @@ class _Rows:
     def nbytes(self):
         """Bytes of the buffers the tracker keeps between calls."""
         seen, total = set(), 0
-        for value in [*vars(self).values(), *self._sets[0].values(), *self._sets[1].values()]:
+        values = [*vars(self).values(), *self._sets[0].values(), *self._sets[1].values()]
+        for value in list(values):
+            if isinstance(value, tuple):  # (pass 2's sort buffers)
+                values.extend(value)
+        for value in values:
             if isinstance(value, np.ndarray) and id(value) not in seen:
                 seen.add(id(value))
                 total += value.nbytes
@@ -215,6 +223,13 @@ class _Rows:
                                  "another, e.g. two that alternate)")
         if self._k_prev == 0 or not len(prev):
             out[...] = fill
+            return out
+        if (h.dtype == np.float64 and h.ndim <= 2 and h.flags.c_contiguous
+                and out.flags.c_contiguous and isinstance(fill, (float, int))
+                and not isinstance(fill, bool)):
+            # the common history (float64 rows, a number for new contacts) in one pass
+            w = h.shape[1] if h.ndim == 2 else 1
+            kern.carry_rows(h.reshape(len(h), w), prev, float(fill), out.reshape(len(prev), w))
             return out
         np.take(h, prev, axis=0, out=out, mode="clip")
         if self._new is None:
@@ -663,7 +678,6 @@ class PairIdentity(_Rows):
         self._todo = todo = _grow(self._todo, k, np.int64)
         sets["left"] = left = _grow(sets.get("left"), k_prev, np.int64)
         sets["ended"] = ended = _grow(sets.get("ended"), k_prev, np.int64)
-        keys, rows, scratch_keys, scratch_rows, counts, _ = self._rest_buffers(max(k, k_prev))
         flags = sets["matched"][:k_prev + (-k_prev) % 8]  # (as _matched zeroed and padded it)
         mapped = m is not None
         m = m if mapped else _NO_ROWS
@@ -674,9 +688,15 @@ class PairIdentity(_Rows):
              int(min(k_prev, 4096 + 2 * abs(k - k_prev))), out, flags[:k_prev], todo,
              todo_counts)
         n_todo = int(todo_counts[0])
-        n_ended, n_left = kern.rest_one(pairs, m, mapped, prev[2], self.shifts, shifts, jumps,
-                                        prev_pairs, prev[1], n_todo, out, flags, todo, left,
-                                        keys, rows, scratch_keys, scratch_rows, counts, ended)
+        # pass 2's buffers as large as its work, made when it first has more
+        rest = self._rest if self._rest is not None else _NO_REST
+        while True:
+            n_ended, n_left = kern.rest_one(pairs, m, mapped, prev[2], self.shifts, shifts,
+                                            jumps, prev_pairs, prev[1], n_todo, out, flags, todo,
+                                            left, *rest[:5], ended)
+            if n_ended != -2:
+                break
+            rest = self._rest_buffers(max(int(n_left), n_todo))
         self._last_counts = (n_todo, int(n_left))
         if n_ended < 0:
             raise ValueError(f"contact identity follows up to 2**32 particles, the previous "

@@ -305,6 +305,31 @@ def test_shuffled_pairs_go_through_the_sorted_second_pass(threads):
         prev = pairs
 
 
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_second_pass_work_growing_from_call_to_call(threads):
+    # pass 2's buffers are made as large as its work, and grow with it
+    rng = np.random.default_rng(21)
+    n = 400
+    track = PairIdentity(n_threads=threads)
+    prev = None
+    for churn in (0, 1, 3, 40, 10, 300, 2000, 5):
+        pairs = np.unique(np.sort(rng.integers(0, n, (3000, 2)), axis=1), axis=0)
+        pairs = pairs[pairs[:, 0] < pairs[:, 1]]
+        if prev is not None:  # most of the previous pairs, shuffled, and churn new ones
+            keep = prev[rng.random(len(prev)) > churn / (churn + len(prev))]
+            pairs = np.unique(np.concatenate([keep, pairs[:churn]]), axis=0)
+            pairs = pairs[rng.permutation(len(pairs))]
+        rows = track.update(pairs, n)
+        if prev is not None:
+            where = {(int(a), int(b)): q for q, (a, b) in enumerate(prev)}
+            want = [where.get((int(a), int(b)), -1) for a, b in pairs]
+            assert rows.tolist() == want
+            ended = sorted(set(range(len(prev))) - {q for q in want if q >= 0})
+            assert track.ended_rows.tolist() == ended
+        prev = pairs
+
+
 class TestOneKeptList:
     """Verlet frames on the list of the last rebuild match pairs by their entry in
     it; anything else (a rebuild, ids that changed) takes the general matching."""
@@ -469,6 +494,32 @@ class TestCarry:
         np.testing.assert_array_equal(out, got)
         vec = search.carry(np.arange(len(p1)), fill=[-1])
         assert vec.shape == (len(p2),)
+
+    @pytest.mark.parametrize("shape", [(), (3,), (0,), (2, 2)])
+    @pytest.mark.parametrize("fill", [0.0, -2, np.float64(np.nan), [5.0]])
+    @pytest.mark.parametrize("how", ["new", "out", "strided out", "strided history"])
+    def test_every_history_carries_as_a_gather(self, shape, fill, how):
+        search = NeighborSearch(1.3, identity=True)
+        rng = np.random.default_rng(13)
+        x = rng.uniform(0, L, (150, 3))
+        p1, _ = search.update(x, BOX)
+        h = rng.normal(size=(len(p1), *shape))
+        p2, _ = search.update(x + rng.normal(0, 0.1, x.shape), BOX)
+        prev = search.previous_rows
+        assert (prev < 0).any() and (prev >= 0).any()
+        want = np.empty((len(p2), *shape))
+        want[prev >= 0] = h[prev[prev >= 0]]
+        want[prev < 0] = fill
+        if how == "strided history":
+            h = np.repeat(h, 2, axis=0)[::2]
+        if how == "new" or how == "strided history":
+            got = search.carry(h, fill)
+        else:
+            base = np.full((len(p2), *shape, 2) if how == "strided out" else want.shape, 9.0)
+            out = base[..., 0] if how == "strided out" else base
+            assert search.carry(h, fill, out=out) is out
+            got = out
+        np.testing.assert_array_equal(got, want)
 
     def test_clump_pair_history(self):
         frames = trajectory(16, 5, 200, churn=2, reorder=True, wrap=True)

@@ -487,8 +487,9 @@ def rest_one(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, pr
     ``matched`` as pass 1 left it, padded as ``unmatched_words`` reads it;
     ``left`` has room for every previous row, ``keys`` ... ``scratch_rows`` (2,
     >= both counts) and ``counts`` are ``rest_sort``'s.  Returns (rows ended,
-    -1 when pass 2 has work but ``n_prev`` is 2**32 or more: nothing written
-    that counts; previous rows pass 1 left)."""
+    -1 when pass 2 has work but ``n_prev`` is 2**32 or more, -2 when it has
+    work but ``keys`` holds fewer than both counts (nothing written then but
+    ``left``: call again with larger buffers); previous rows pass 1 left)."""
     n_left = unmatched_into(flags, left)
     if n_left == 0 or n_todo == 0:
         for i in range(n_left):
@@ -496,6 +497,8 @@ def rest_one(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, pr
         return n_left, n_left
     if n_prev >= np.int64(2) ** 32:
         return np.int64(-1), n_left
+    if keys.shape[1] < max(n_left, n_todo):
+        return np.int64(-2), n_left
     bounds = np.zeros(2, np.int64)
     bounds[1] = n_todo
     todo_counts = np.full(1, n_todo, np.int64)
@@ -617,6 +620,21 @@ def unmatched_into(matched, out):
                 o += 1
     return o
 
+
+
+@jit
+def carry_rows(history, prev_rows, fill, out):
+    """``out[r] = history[prev_rows[r]]``, ``fill`` where ``prev_rows[r] < 0``: the
+    carry of a float64 history of ``(k_prev, w)`` rows in one pass."""
+    w = history.shape[1]
+    for r in range(prev_rows.shape[0]):
+        q = prev_rows[r]
+        if q >= 0:
+            for c in range(w):
+                out[r, c] = history[q, c]
+        else:
+            for c in range(w):
+                out[r, c] = fill
 
 # ------------------------------------------------------------------ keys
 
