@@ -96,13 +96,13 @@ class _Setup:
         return radii[keys // n] + radii[keys % n] + self.skin
 
 
-def _geometry(frame):
+def _geometry(frame, open_axes=()):
     """(positions, cell or None, pbc) in the form granularsap takes: no cell for
-    a frame open along every axis."""
+    a frame open along every axis; ``open_axes`` open whatever the frame says."""
     import numpy as np
 
     pos = np.ascontiguousarray(frame.positions, dtype=np.float64)
-    pbc = tuple(bool(f) for f in frame.pbc)
+    pbc = tuple(bool(f) and c not in open_axes for c, f in enumerate(frame.pbc))
     if frame.cell is None or not any(pbc):
         return pos, None, (False, False, False)
     return pos, np.asarray(frame.cell, dtype=np.float64), pbc
@@ -211,7 +211,7 @@ def _tie_tolerance(ref, pos, cell, reach_scale):
 
 def compare_trajectory(trajectory, *, against=REFERENCES, cutoff=None, radius_column=None,
                        skin=0.0, frames=None, format=None, show=10, out=None,
-                       name="granularsap validate"):
+                       name="granularsap validate", open_axes=()):
     """Compare granularsap's pairs with each reference of ``against``, frame by frame.
 
     Prints a header line, one table row per frame, every differing pair (at most
@@ -236,6 +236,9 @@ def compare_trajectory(trajectory, *, against=REFERENCES, cutoff=None, radius_co
         As :func:`granularsap.io.iter_frames` takes it.
     show : int
         Differing pairs listed per frame and reference.
+    open_axes : sequence of int
+        Axes (0, 1, 2) compared as open whatever the file's boundaries say (a
+        LAMMPS 2-D run's z), by every code.
 
     Returns
     -------
@@ -251,6 +254,7 @@ def compare_trajectory(trajectory, *, against=REFERENCES, cutoff=None, radius_co
     import numpy as np
 
     from .io import iter_frames
+    from .io.pipeline import FrameError
 
     stream = out if out is not None else sys.stdout
 
@@ -267,11 +271,14 @@ def compare_trajectory(trajectory, *, against=REFERENCES, cutoff=None, radius_co
         if setup is None:
             setup = _Setup(cutoff, radius_column, skin, frame)
             say(f"{name}: {trajectory}: {setup.describe()}; against {', '.join(refs)}")
-        pos, cell, pbc = _geometry(frame)
+        pos, cell, pbc = _geometry(frame, tuple(open_axes))
         n = len(pos)
         radii = setup.radii(frame) if setup.cutoff is None else None
         t0 = time.perf_counter()
-        mine = _keys(_run_granularsap(setup, pos, cell, pbc, radii), max(n, 1))
+        try:
+            mine = _keys(_run_granularsap(setup, pos, cell, pbc, radii), max(n, 1))
+        except ValueError as exc:  # named by file, frame and particle id
+            raise FrameError.of(frame, exc) from None
         times = {"granularsap": time.perf_counter() - t0}
         row = [f"{frame.index:>5}", f"{frame.step if frame.step is not None else '-':>8}",
                f"{n:>6}", f"{len(mine):>11}"]

@@ -507,3 +507,46 @@ class TestWithoutIds:
         compute_contacts(dump, out, params, on_warning=told.append)
         with h5py.File(out) as f:
             assert f.attrs["pair_index"] == "row" and f.attrs["n_frames"] == 4
+
+
+def test_a_lammps_2d_run_with_z_searched_open(tmp_path, capsys):
+    # LAMMPS `dimension 2` writes a periodic z one unit thick with every z = 0: the
+    # range exceeds half that width, so the search refuses it unless told z is open
+    rng = np.random.default_rng(8)
+    cell = lammps_cell(12, 12, 1.0)
+    frames = []
+    for k in range(3):
+        pos = np.column_stack([rng.uniform(0, 12, 150), rng.uniform(0, 12, 150),
+                               np.zeros(150)])
+        frames.append({"positions": pos, "cell": cell, "radius": np.full(150, 0.5),
+                       "step": 100 * k, "ids": rng.permutation(150) + 1})
+    path = tmp_path / "twod.dump"
+    write_dump(path, frames, columns=("id", "type", "radius", "x", "y", "z"),
+               origin=(0.0, 0.0, -0.5))
+    out = tmp_path / "twod.h5"
+    assert main(["contacts", str(path), "-o", str(out), "-q"]) == 2
+    msg = capsys.readouterr().err
+    assert "twod.dump: frame 0 (step 0)" in msg and "--open z" in msg
+    assert main(["contacts", str(path), "-o", str(out), "-q", "--open", "z",
+                 "--distances"]) == 0
+    with ContactsFile(out) as cf:
+        assert cf.parameters["open_axes"] == "z"
+        assert cf.pbc.tolist() == [[True, True, False]] * 3
+        for k, fr in enumerate(frames):
+            # brute force in the plane: x and y periodic (12 wide), z open
+            d = fr["positions"][:, None, :] - fr["positions"][None, :, :]
+            d[..., :2] -= 12.0 * np.round(d[..., :2] / 12.0)
+            dist = np.sqrt((d ** 2).sum(-1))
+            i, j = np.nonzero(np.triu(dist <= 1.0, 1))
+            want = np.sort(np.column_stack([fr["ids"][i], fr["ids"][j]]), axis=1)
+            want = want[np.lexsort((want[:, 1], want[:, 0]))]
+            np.testing.assert_array_equal(cf.pairs(k), want)
+    assert main(["validate", str(path), "--open", "z", "--against", "mdanalysis"]) == 0
+    assert "identical" in capsys.readouterr().out
+    for bad in ("w", "zz", ""):
+        with pytest.raises(SystemExit) as exc:
+            main(["contacts", str(path), "-o", str(out), "--open", bad])
+        assert exc.value.code == 2
+        assert "--open" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="open_axes must be distinct axis numbers"):
+        granularsap.io.ContactParams(cutoff=1.0, open_axes=(3,))

@@ -300,3 +300,38 @@ def test_quick_start_outputs_are_ignored_by_git():
     proc = subprocess.run(["git", "check-ignore", "--no-index", *names], cwd=ROOT,
                           capture_output=True, text=True, timeout=30)
     assert sorted(proc.stdout.split()) == sorted(names), proc.stdout
+
+
+@pytest.mark.parametrize("bad", ["narrow cell", "far particle"])
+def test_a_frame_the_search_refuses_is_named_and_the_frames_before_kept(tmp_path, capsys,
+                                                                        bad):
+    # a compressing run whose box shrinks below twice the range, or a particle thrown
+    # far out: the engine's error names the file, the frame, its step and the particle
+    frames = random_frames(30, 4, cell=lammps_cell(6, 6, 6), seed=3)
+    frames[3]["step"] = 777
+    ids = np.arange(30) + 101
+    for f in frames:
+        f["ids"] = ids
+    if bad == "narrow cell":
+        frames[3]["cell"] = lammps_cell(6, 6, 1.5)
+        frames[3]["positions"] = frames[3]["positions"] * [1, 1, 0.25]
+    else:
+        frames[3]["positions"] = frames[3]["positions"].copy()
+        frames[3]["positions"][5] = [1e300, 1.0, 1.0]
+    path = tmp_path / "run.dump"
+    write_dump(path, frames, columns=("id", "type", "radius", "x", "y", "z"))
+    out = tmp_path / "run.h5"
+    assert main(["contacts", str(path), "-o", str(out), "-q"]) == 2
+    msg = one_error_line(capsys)
+    assert "run.dump: frame 3 (step 777): " in msg
+    if bad == "far particle":
+        assert "(row 5 is particle id 106)" in msg
+    else:
+        assert "smallest perpendicular cell width" in msg
+    assert "the 3 good frames before it are kept" in msg and "--frames 0:3" in msg
+    assert main(["contacts", str(path), "-o", str(out), "-q", "--frames", "0:3"]) == 0
+    with ContactsFile(out) as f:
+        assert f.n_frames == 3
+    # and validate names it alike
+    assert main(["validate", str(path), "--against", "mdanalysis"]) == 2
+    assert "run.dump: frame 3 (step 777): " in capsys.readouterr().err

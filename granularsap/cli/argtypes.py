@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import re
 
-__all__ = ["frames", "nonneg", "parse_size", "positive_int", "split_list"]
+__all__ = ["axes", "frames", "nonneg", "parse_size", "positive_int", "split_list"]
 
 
 def frames(text):
@@ -37,6 +37,21 @@ def frames(text):
     if step is not None and step <= 0:
         raise argparse.ArgumentTypeError(f"STEP must be positive, got {text!r}") from None
     return slice(start, stop, step)
+
+
+def axes(text):
+    """Axis letters ``x``, ``y``, ``z`` (each once, any order) -> sorted axis numbers.
+
+    Examples
+    --------
+    >>> axes("z"), axes("zx")
+    ((2,), (0, 2))
+    """
+    letters = text.strip().lower()
+    if not letters or any(c not in "xyz" for c in letters) or len(set(letters)) != len(letters):
+        raise argparse.ArgumentTypeError(f"expected axis letters from x, y, z, each once (z for "
+                                         f"a LAMMPS 2-D run), got {text!r}") from None
+    return tuple(sorted("xyz".index(c) for c in letters))
 
 
 def nonneg(text):

@@ -33,6 +33,9 @@ def add_arguments(parser):
                            "('diameter' is halved); default: the file's radius or diameter")
     parser.add_argument("--skin", type=argtypes.nonneg, default=0.0, metavar="S",
                         help="sphere contacts: count pairs with d <= r_i + r_j + S (default 0)")
+    parser.add_argument("--open", type=argtypes.axes, default=(), metavar="AXES",
+                        help="search these axes (x, y, z letters) as open whatever the file's "
+                             "boundaries: z for a LAMMPS 2-D run")
     parser.add_argument("--frames", type=argtypes.frames, default=None, metavar="START:STOP:STEP",
                         help="frames to process (default all)")
     parser.add_argument("--clumps", action="store_true",
@@ -86,7 +89,8 @@ def run(args) -> int:
     try:
         params = ContactParams(cutoff=args.cutoff, radius=args.radius,
                                radius_column=args.radius_column, skin=args.skin,
-                               clumps=args.clumps, distances=args.distances, n_threads=threads)
+                               clumps=args.clumps, distances=args.distances, n_threads=threads,
+                               open_axes=args.open)
     except ValueError as exc:
         raise CLIError(str(exc)) from None
     import os

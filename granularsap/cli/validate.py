@@ -58,6 +58,9 @@ def add_arguments(parser):
     parser.add_argument("--frames", type=argtypes.frames, default=None, metavar="START:STOP:STEP",
                         help="frames to check (default all)")
     parser.add_argument("--format", default=None, help="trajectory format (see iter_frames)")
+    parser.add_argument("--open", type=argtypes.axes, default=(), metavar="AXES",
+                        help="compare these axes (x, y, z letters) as open whatever the file's "
+                             "boundaries: z for a LAMMPS 2-D run")
     parser.add_argument("--allow-ties", action="store_true",
                         help="exit 0 (instead of 3) when the only differences are ties at the "
                              "cutoff")
@@ -72,7 +75,8 @@ def run(args) -> int:
     with compile_notice():  # one line on stderr if kernels compile (a cold cache)
         total = compare_trajectory(args.trajectory, against=args.against, cutoff=args.cutoff,
                                    radius_column=args.radius_column, skin=args.skin,
-                                   frames=args.frames, format=args.format, show=args.show)
+                                   frames=args.frames, format=args.format, show=args.show,
+                                   open_axes=args.open)
     if total["diff"]:
         return 1
     if total["ties"] and not args.allow_ties:

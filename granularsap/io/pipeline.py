@@ -19,6 +19,7 @@ import functools
 import itertools
 import logging
 import os
+import re
 import time
 from dataclasses import dataclass
 
@@ -32,7 +33,8 @@ from .readers import TrajectoryError, count_frames, describe_format, iter_frames
 
 __all__ = ["DOMAIN_PARTICLES", "ContactParams", "OutputBusyError", "check_output",
            "compute_contacts",
-           "domain_frame_contacts", "domain_threshold", "engine_cell", "frame_contacts"]
+           "domain_frame_contacts", "domain_threshold", "engine_cell", "frame_contacts",
+           "FrameError"]
 
 #: Default frame size (particles) from which a distributed run splits every frame
 #: into spatial domains over the workers instead of sending one frame per worker.
@@ -49,7 +51,10 @@ class ContactParams:
     (spheres of one radius) or ``radius_column`` (per-particle radii from the
     file: ``"radius"``, or ``"diameter"`` which is halved, or any other column
     holding radii) applies; with none, the file's radius/diameter column is used.
-    Sphere contacts are pairs with ``d <= r_i + r_j + skin``.
+    Sphere contacts are pairs with ``d <= r_i + r_j + skin``.  ``open_axes``
+    (axis numbers) are searched as open whatever the file's boundaries say: a
+    LAMMPS 2-D run's z (``dimension 2`` writes a periodic z one unit thick,
+    which no pair crosses).
     """
 
     cutoff: float | None = None
@@ -59,8 +64,15 @@ class ContactParams:
     clumps: bool = False
     distances: bool = False
     n_threads: int | None = None
+    open_axes: tuple = ()
 
     def __post_init__(self):
+        axes = tuple(self.open_axes)
+        if (any(isinstance(a, bool) or not isinstance(a, (int, np.integer)) or not 0 <= a <= 2
+                for a in axes) or len(set(axes)) != len(axes)):
+            raise ValueError(f"open_axes must be distinct axis numbers 0, 1, 2, got "
+                             f"{self.open_axes!r}")
+        object.__setattr__(self, "open_axes", tuple(sorted(int(a) for a in axes)))
         given = [n for n in ("cutoff", "radius", "radius_column") if getattr(self, n) is not None]
         if len(given) > 1:
             raise ValueError(f"give only one of cutoff, radius and radius_column, got "
@@ -85,6 +97,9 @@ class ContactParams:
         """The parameters that define the result (not how it is computed)."""
         d = dataclasses.asdict(self)
         d.pop("n_threads")
+        d.pop("open_axes")
+        if self.open_axes:  # (files of runs without it keep their attributes)
+            d["open_axes"] = "".join("xyz"[a] for a in self.open_axes)
         d["mode"] = self.mode
         return d
 
@@ -143,8 +158,12 @@ def lean_frame(frame: Frame, params: ContactParams) -> Frame:
     if params.clumps and molecule is None:
         raise ValueError(f"{frame.source} frame {frame.index} has no molecule (mol) column "
                          "for clumps")
+    pbc = frame.pbc
+    if params.open_axes:
+        pbc = np.array(pbc, dtype=bool)
+        pbc[list(params.open_axes)] = False
     return Frame(index=frame.index, positions=frame.positions, ids=frame.ids, cell=frame.cell,
-                 pbc=frame.pbc, step=frame.step, time=frame.time, radius=radius,
+                 pbc=pbc, step=frame.step, time=frame.time, radius=radius,
                  molecule=molecule, source=frame.source, ids_given=frame.ids_given)
 
 
@@ -212,6 +231,41 @@ def worker_frame_contacts(frame: Frame, params: ContactParams) -> FrameResult:
     return frame_contacts(frame, params, _worker_search(params))
 
 
+class FrameError(ValueError):
+    """The search refused a frame (a cell too narrow for the range, a particle far
+    outside it, ...): the message names the file, the frame, its step and, where
+    the search names a row, that particle's id."""
+
+    def __init__(self, source, frame, step, message):
+        self.source, self.frame, self.step, self.message = source, frame, step, message
+        super().__init__(f"{source}: frame {frame} (step {step}): {message}")
+
+    def __reduce__(self):  # survives pickling (errors raised on Dask workers)
+        return (type(self), (self.source, self.frame, self.step, self.message))
+
+    @classmethod
+    def of(cls, frame, exc):
+        """The error ``exc`` that a search of ``frame`` raised, named by its frame."""
+        message = _row_ids(str(exc), frame)
+        if "perpendicular cell width" in message:
+            message += ("; or search an axis as open: a LAMMPS 2-D run's periodic z, one "
+                        "unit thick, is no real axis (--open z; Python: "
+                        "ContactParams(open_axes=(2,)))")
+        return cls(frame.source, frame.index, frame.step, message)
+
+
+def _row_ids(message, frame):
+    """``message`` with the particle id of the first row it names (the search knows
+    rows only), when the frame has ids."""
+    found = re.search(r"\brows? (\d+)\b", message)
+    if found is None or not frame.ids_given:
+        return message
+    row = int(found.group(1))
+    if row >= frame.n_particles:
+        return message
+    return f"{message} (row {row} is particle id {int(frame.ids[row])})"
+
+
 def frame_contacts(frame: Frame, params: ContactParams, search: FrameSearch | None = None
                    ) -> FrameResult:
     """Contacts of one frame as particle-id pairs (rows sorted).
@@ -230,7 +284,10 @@ def frame_contacts(frame: Frame, params: ContactParams, search: FrameSearch | No
     t0 = time.perf_counter()
     if search is None:
         search = FrameSearch(params)
-    pairs, distances, clump_pairs = search(frame)
+    try:
+        pairs, distances, clump_pairs = search(frame)
+    except ValueError as exc:
+        raise FrameError.of(frame, exc) from None
     return _frame_result(frame, pairs, distances, clump_pairs, t0)
 
 
@@ -717,19 +774,20 @@ def compute_contacts(trajectory, output, params: ContactParams, *, format=None, 
         t0 = time.perf_counter()
         writer.finish(timing)
         timing["write"] += time.perf_counter() - t0
-    except DumpFormatError as exc:
+    except (DumpFormatError, FrameError) as exc:
         kept = writer.n_frames
         if not kept or exc.frame is None or exc.frame <= start:
             raise
         # the good frames are kept, but the same command would stop at the same frame
         sel = f"{start}:{exc.frame}" + (f":{step}" if step != 1 else "")
-        raise DumpFormatError(
-            exc.path, exc.frame, exc.line,
-            f"{exc.message}; the {kept} good frames before it are kept in "
-            f"{partial_path(output)}, but running the same command again stops here again: "
-            f"to finish {output} without frame {exc.frame} and the frames after it, run it "
-            f"with --frames {sel} (Python: frames=slice({start}, {exc.frame}, {step})), "
-            "which resumes from them; or repair the trajectory") from None
+        advice = (f"; the {kept} good frames before it are kept in {partial_path(output)}, "
+                  f"but running the same command again stops here again: to finish "
+                  f"{output} without frame {exc.frame} and the frames after it, run it with "
+                  f"--frames {sel} (Python: frames=slice({start}, {exc.frame}, {step})), "
+                  "which resumes from them; or repair the trajectory")
+        if isinstance(exc, FrameError):
+            raise FrameError(exc.source, exc.frame, exc.step, exc.message + advice) from None
+        raise DumpFormatError(exc.path, exc.frame, exc.line, exc.message + advice) from None
     finally:
         if runner is not None:
             runner.close()
