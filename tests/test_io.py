@@ -200,11 +200,27 @@ class TestTruncatedAndCorrupt:
         text = "".join(lines)
         path.write_text(text[: len(text) - len(lines[-1]) // 2 - 1])
         got = []
-        with pytest.raises(DumpFormatError, match=rf"frame 2, line {len(lines)}: expected 6 "
-                                                  r"values on an atom row, got \d"):
+        with pytest.raises(DumpFormatError, match=rf"frame 2, line {len(lines)}: truncated: the "
+                                                  r"file ends in the middle of atom row 30 of 30 "
+                                                  r"\(no end of line\): expected 6 values on an "
+                                                  r"atom row, got \d"):
             for fr in iter_frames(path):
                 got.append(fr.index)
         assert got == [0, 1]
+
+    @pytest.mark.parametrize("item", ["TIMESTEP", "NUMBER OF ATOMS", "BOX BOUNDS"])
+    def test_cut_inside_a_header_value(self, tmp_path, item):
+        # a number cut short (2000 -> 20) must not be read as a smaller one
+        path, lines = self._dump(tmp_path)
+        at = 39 + next(k for k in range(9) if lines[39 + k].startswith(f"ITEM: {item}")) + 1
+        for keep in range(1, len(lines[at]) - 1):
+            path.write_text("".join(lines[:at]) + lines[at][:keep])
+            got = []
+            with pytest.raises(DumpFormatError, match=rf"frame 1, line {at + 1}: truncated: the "
+                                                      r"file ends in the middle of a header line"):
+                for fr in iter_frames(path):
+                    got.append(fr.index)
+            assert got == [0]
 
     def test_corrupt_number(self, tmp_path):
         path, lines = self._dump(tmp_path)
@@ -345,7 +361,8 @@ class TestTruncatedAndCorrupt:
         text = "".join(lines)
         path.write_text(text[:-40])
         offsets, starts = dump_frame_index(path)
-        with pytest.raises(DumpFormatError, match=r"frame 2, line 117: expected 6 values"):
+        with pytest.raises(DumpFormatError, match=r"frame 2, line 117: truncated: .* expected 6 "
+                                                  r"values"):
             list(iter_lammps_dump(path, start_at=(offsets[2], starts[2], 2)))
 
     def test_missing_file(self, tmp_path):

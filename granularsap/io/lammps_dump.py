@@ -158,8 +158,11 @@ def _parse_atoms(lines, ncol, path, frame, first_line):
                 f"({len(lines) - k} missing): {line.strip()[:40]!r} comes after atom row {k}")
         parts = line.split()
         if len(parts) != ncol:
-            raise DumpFormatError(path, frame, first_line + k,
-                                  f"expected {ncol} values on an atom row, got {len(parts)}")
+            what = f"expected {ncol} values on an atom row, got {len(parts)}"
+            if k == len(lines) - 1 and not line.endswith("\n"):  # LAMMPS ends every line
+                what = (f"truncated: the file ends in the middle of atom row {k + 1} of "
+                        f"{len(lines)} (no end of line): {what}")
+            raise DumpFormatError(path, frame, first_line + k, what)
         rows.append(parts)
     return None, np.array(rows, dtype=object)
 
@@ -313,6 +316,14 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
                 raise DumpFormatError(path, _index, src.lineno if line_no is None else line_no,
                                       msg)
 
+            def value():
+                # a header item's value line; LAMMPS ends every line, so one without an
+                # end of line is cut short (its number may have lost digits)
+                val = src.next()
+                if val is not None and not val.endswith("\n"):
+                    fail("truncated: the file ends in the middle of a header line")
+                return val
+
             # ---- header items up to ITEM: ATOMS
             first_line = index == 0 and start_at is None
             while True:
@@ -331,21 +342,21 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
                     fail("truncated: the file ends in the middle of a header line")
                 item = text[5:].strip()
                 if item.startswith("TIMESTEP"):
-                    val = src.next()
+                    val = value()
                     try:
                         header["timestep"] = int(val.split()[0])
                     except (AttributeError, ValueError, IndexError):
                         fail("bad or missing TIMESTEP value")
                 elif item.startswith("TIME"):
-                    val = src.next()
+                    val = value()
                     try:
                         header["time"] = float(val.split()[0])
                     except (AttributeError, ValueError, IndexError):
                         fail("bad or missing TIME value")
                 elif item.startswith("UNITS"):
-                    src.next()
+                    value()
                 elif item.startswith("NUMBER OF ATOMS"):
-                    val = src.next()
+                    val = value()
                     try:
                         header["natoms"] = int(val.split()[0])
                     except (AttributeError, ValueError, IndexError):
@@ -360,7 +371,7 @@ def iter_lammps_dump(path, *, frames=None, coordinates=None, start_at=None):
                     flags_line = src.lineno
                     rows = []
                     for _ in range(3):
-                        val = src.next()
+                        val = value()
                         try:
                             rows.append([float(v) for v in val.split()])
                         except (AttributeError, ValueError):
