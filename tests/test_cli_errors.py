@@ -335,3 +335,12 @@ def test_a_frame_the_search_refuses_is_named_and_the_frames_before_kept(tmp_path
     # and validate names it alike
     assert main(["validate", str(path), "--against", "mdanalysis"]) == 2
     assert "run.dump: frame 3 (step 777): " in capsys.readouterr().err
+
+
+def test_mdanalysis_asked_for_a_dump_names_the_format_that_reads_it(tmp_path, capsys):
+    path = os.path.join(ROOT, "data", "lj.dump")
+    out = tmp_path / "lj.h5"
+    args = ["contacts", path, "-o", str(out), "--cutoff", "2.5", "-q", "--frames", "0:2"]
+    assert main(args + ["--format", "mdanalysis"]) == 2
+    assert "--format mdanalysis:LAMMPSDUMP" in one_error_line(capsys)
+    assert main(args + ["--format", "mdanalysis:LAMMPSDUMP"]) == 0

@@ -229,8 +229,14 @@ def _universe(path, sub, topology, kwargs):
         raise
     except Exception as exc:  # noqa: BLE001 - MDAnalysis raises many kinds on a foreign file
         what = f"format {sub!r}" if sub else "the format its suffix suggests"
+        hint = ""
+        if sub is None and str(path).lower().endswith((".dump", ".lammpstrj", ".dump.gz")):
+            # MDAnalysis knows a LAMMPS dump by its format name, not by these suffixes
+            hint = ("; for a LAMMPS dump ask for --format mdanalysis:LAMMPSDUMP (Python: "
+                    "format='mdanalysis:LAMMPSDUMP'), or --format lammps-dump, granularsap's "
+                    "own reader, which also reads dumps whose atom count changes")
         raise TrajectoryError(f"{path}: not a trajectory MDAnalysis can read as {what} "
-                              f"({_exception_text(exc)}); {EXPECTED}") from None
+                              f"({_exception_text(exc)}){hint}; {EXPECTED}") from None
 
 
 def _iter_mdanalysis(path, sub, frames, topology, kwargs):
