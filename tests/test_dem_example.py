@@ -346,6 +346,12 @@ def test_dem_loop_runs_against_lammps(ex):
     assert listed["lammps"] == verlet["lammps"]
     g = listed["granularsap"]
     assert g["rebuilds"] == verlet["granularsap"]["rebuilds"]
+    # the grains' mean split into the steps that built the list and those that kept it
+    for s in (verlet, listed, rebuild):
+        h = s["granularsap"]
+        assert h["grains_builds"] + h["grains_kept"] == pytest.approx(h["grains_mean"])
+        assert (h["grains_kept"] == 0) == (h["rebuilds"] == 8)
+        assert (h["grains_builds"] == 0) == (h["rebuilds"] == 0)
     assert g["listed"] >= g["contacts"] and g["separations_mean"] > 0
     assert rebuild["lammps"]["neigh"] > verlet["lammps"]["neigh"]
     assert 0 < rebuild["ratios"]["grains_neigh"] < rebuild["ratios"]["all_neigh"]
@@ -357,6 +363,8 @@ def test_dem_loop_runs_against_lammps(ex):
     assert "N=150" in text and " verlet: a kept Verlet list" in text
     assert " rebuild: rebuilt every step" in text and "grains / Neigh" in text
     assert " list: a kept neighbour list" in text and "listed pairs" in text
+    if 0 < g["rebuilds"] < 8:
+        assert "steps that built the list" in text and "LAMMPS's Other" in text
     assert "Neigh + Modify" in text and "fastest of 8 runs of 1 steps" in text
     assert "lammps-rebuild (Neigh + Comm of run 10" in text and "Modify holds" in text
 
