@@ -327,7 +327,8 @@ def test_a_frame_the_search_refuses_is_named_and_the_frames_before_kept(tmp_path
     if bad == "far particle":
         assert "(row 5 is particle id 106)" in msg
     else:
-        assert "smallest perpendicular cell width" in msg
+        assert "smallest perpendicular cell width" in msg and "--open z" in msg
+        assert "periodic_images" not in msg  # (not an option of the command line)
     assert "the 3 good frames before it are kept" in msg and "--frames 0:3" in msg
     assert main(["contacts", str(path), "-o", str(out), "-q", "--frames", "0:3"]) == 0
     with ContactsFile(out) as f:

@@ -248,6 +248,10 @@ class FrameError(ValueError):
         """The error ``exc`` that a search of ``frame`` raised, named by its frame."""
         message = _row_ids(str(exc), frame)
         if "perpendicular cell width" in message:
+            # (trajectories are searched by minimum image: the engine's every-image
+            # option is not theirs to offer)
+            message = message.replace(
+                ", or periodic_images='all' to get every image with its shift", "")
             message += ("; or search an axis as open: a LAMMPS 2-D run's periodic z, one "
                         "unit thick, is no real axis (--open z; Python: "
                         "ContactParams(open_axes=(2,)))")
