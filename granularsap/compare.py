@@ -96,6 +96,20 @@ class _Setup:
         return radii[keys // n] + radii[keys % n] + self.skin
 
 
+def _checked_axes(axes):
+    """``open_axes`` as a tuple of distinct axis numbers 0, 1, 2, or ValueError."""
+    import numpy as np
+
+    try:
+        got = tuple(axes)
+    except TypeError:
+        got = None
+    if got is None or any(isinstance(a, (bool, np.bool_)) or not isinstance(a, (int, np.integer))
+                          or not 0 <= a <= 2 for a in got) or len(set(got)) != len(got):
+        raise ValueError(f"open_axes must be distinct axis numbers 0, 1, 2, got {axes!r}")
+    return tuple(int(a) for a in got)
+
+
 def _geometry(frame, open_axes=()):
     """(positions, cell or None, pbc) in the form granularsap takes: no cell for
     a frame open along every axis; ``open_axes`` open whatever the frame says."""
@@ -132,8 +146,8 @@ def periodic_stand_in(positions, cell, pbc, reach):
     The periodic cell vectors are kept; each open one is replaced by a vector
     normal to the periodic ones (and to the other open one,
     :func:`granularsap.cell.open_directions`, as LAMMPS's box gets) of length
-    ``L = 2 (e + reach)``, ``e`` the particles' extent along it.  Two particles are
-    at most ``e`` apart along that normal, so every image across it is
+    ``L = 2 (e + reach)`` (a millionth more), ``e`` the particles' extent along
+    it.  Two particles are at most ``e`` apart along that normal, so every image across it is
     farther than ``L - e > reach``: the pairs within ``reach`` are those with
     images along the periodic axes only, as in ``(cell, pbc)``.
 
@@ -141,7 +155,7 @@ def periodic_stand_in(positions, cell, pbc, reach):
     --------
     >>> import numpy as np
     >>> x = np.array([[0.5, 0.5, 0.0], [0.5, 0.5, 9.0]])
-    >>> periodic_stand_in(x, 10.0 * np.eye(3), (True, True, False), 1.0).round(6).tolist()
+    >>> periodic_stand_in(x, 10.0 * np.eye(3), (True, True, False), 1.0).round(4).tolist()
     [[10.0, 0.0, 0.0], [0.0, 10.0, 0.0], [0.0, 0.0, 20.0]]
     """
     import numpy as np
@@ -154,7 +168,9 @@ def periodic_stand_in(positions, cell, pbc, reach):
     for normal, k in zip(open_directions(cell[periodic]), opened, strict=True):
         along = positions @ normal
         extent = float(along.max() - along.min()) if len(positions) else 0.0
-        length = 2.0 * (extent + reach)
+        # (a hair more: MDAnalysis checks reach <= L / 2 in float32, where 2 reach
+        # may round below it; particles all in one plane, a LAMMPS 2-D run, give L = 2 reach)
+        length = 2.0 * (extent + reach) * (1.0 + 1e-6)
         cell[k] = normal * (length if length > 0.0 else 1.0)
     if np.linalg.det(cell) < 0.0:
         cell[opened[-1]] *= -1.0
@@ -256,6 +272,7 @@ def compare_trajectory(trajectory, *, against=REFERENCES, cutoff=None, radius_co
     from .io import iter_frames
     from .io.pipeline import FrameError
 
+    open_axes = _checked_axes(open_axes)
     stream = out if out is not None else sys.stdout
 
     def say(line):
@@ -271,7 +288,7 @@ def compare_trajectory(trajectory, *, against=REFERENCES, cutoff=None, radius_co
         if setup is None:
             setup = _Setup(cutoff, radius_column, skin, frame)
             say(f"{name}: {trajectory}: {setup.describe()}; against {', '.join(refs)}")
-        pos, cell, pbc = _geometry(frame, tuple(open_axes))
+        pos, cell, pbc = _geometry(frame, open_axes)
         n = len(pos)
         radii = setup.radii(frame) if setup.cutoff is None else None
         t0 = time.perf_counter()

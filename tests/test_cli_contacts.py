@@ -543,10 +543,18 @@ def test_a_lammps_2d_run_with_z_searched_open(tmp_path, capsys):
             np.testing.assert_array_equal(cf.pairs(k), want)
     assert main(["validate", str(path), "--open", "z", "--against", "mdanalysis"]) == 0
     assert "identical" in capsys.readouterr().out
+    # every z 0: MDAnalysis's stand-in cell is 2 x the reach thick, which float32 must
+    # not round below twice the cutoff (1.3 is 1.29999995 in float32)
+    assert main(["validate", str(path), "--open", "z", "--against", "mdanalysis",
+                 "--cutoff", "1.3"]) == 0
+    assert "identical" in capsys.readouterr().out
     for bad in ("w", "zz", ""):
         with pytest.raises(SystemExit) as exc:
             main(["contacts", str(path), "-o", str(out), "--open", bad])
         assert exc.value.code == 2
         assert "--open" in capsys.readouterr().err
-    with pytest.raises(ValueError, match="open_axes must be distinct axis numbers"):
-        granularsap.io.ContactParams(cutoff=1.0, open_axes=(3,))
+    for bad in ((3,), 2, (2, 2), (True,), "z"):
+        with pytest.raises(ValueError, match="open_axes must be distinct axis numbers"):
+            granularsap.io.ContactParams(cutoff=1.0, open_axes=bad)
+        with pytest.raises(ValueError, match="open_axes must be distinct axis numbers"):
+            granularsap.compare.compare_trajectory(path, open_axes=bad)

@@ -330,6 +330,14 @@ def test_a_frame_the_search_refuses_is_named_and_the_frames_before_kept(tmp_path
         assert "smallest perpendicular cell width" in msg and "--open z" in msg
         assert "periodic_images" not in msg  # (not an option of the command line)
     assert "the 3 good frames before it are kept" in msg and "--frames 0:3" in msg
+    # frames split into spatial domains over Dask workers: refused alike
+    assert main(["contacts", str(path), "-o", str(tmp_path / "dom.h5"), "-q",
+                 "--workers", "2", "--domain-particles", "10"]) == 2
+    msg = one_error_line(capsys)
+    assert "run.dump: frame 3 (step 777): " in msg and "--frames 0:3" in msg
+    assert "periodic_images" not in msg
+    if bad == "far particle":
+        assert "(row 5 is particle id 106)" in msg
     assert main(["contacts", str(path), "-o", str(out), "-q", "--frames", "0:3"]) == 0
     with ContactsFile(out) as f:
         assert f.n_frames == 3

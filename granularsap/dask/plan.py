@@ -85,6 +85,16 @@ def chunk_extent(pos, rad, offset, frac_cell):
         inf = np.full(3, np.inf)
         return inf, -inf, 0.0, 0.0
     s = raw_frac(frac_cell, pos)
+    if frac_cell is not None:
+        # as the engine refuses it (grid.WRAP_LIMIT): a particle so far out along a
+        # periodic axis that wrapping it keeps no significant digit
+        far = np.abs(s[:, np.asarray(frac_cell.pbc, bool)]) >= 2.0 ** 52
+        if far.any():
+            bad = int(np.flatnonzero(far.any(axis=1))[0])
+            raise ValueError(f"positions row {offset + bad} ({pos[bad].tolist()}) lies 2**52 "
+                             "cell lengths or more outside the cell along a periodic axis: "
+                             "wrapping it into the cell would keep no significant digit. Give "
+                             "coordinates within 2**52 cell lengths of the cell")
     rmax = float(rad.max()) if rad is not None and rad.size else 0.0
     return s.min(axis=0), s.max(axis=0), float(np.abs(s).max()), rmax
 

@@ -67,9 +67,12 @@ class ContactParams:
     open_axes: tuple = ()
 
     def __post_init__(self):
-        axes = tuple(self.open_axes)
-        if (any(isinstance(a, bool) or not isinstance(a, (int, np.integer)) or not 0 <= a <= 2
-                for a in axes) or len(set(axes)) != len(axes)):
+        try:
+            axes = tuple(self.open_axes)
+        except TypeError:
+            axes = (None,)
+        if (any(isinstance(a, (bool, np.bool_)) or not isinstance(a, (int, np.integer))
+                or not 0 <= a <= 2 for a in axes) or len(set(axes)) != len(axes)):
             raise ValueError(f"open_axes must be distinct axis numbers 0, 1, 2, got "
                              f"{self.open_axes!r}")
         object.__setattr__(self, "open_axes", tuple(sorted(int(a) for a in axes)))
@@ -142,18 +145,19 @@ def lean_frame(frame: Frame, params: ContactParams) -> Frame:
     """A copy with only what :func:`frame_contacts` needs (cheap to ship to a worker)."""
     radius = None if params.cutoff is not None else _radii(frame, params)
     # bad numbers named by file, frame and particle id (the engine knows only row numbers)
-    where = f"{frame.source}: frame {frame.index} (step {frame.step})"
     bad = np.flatnonzero(~np.isfinite(frame.positions).all(axis=1))
     if len(bad):
         k = bad[0]
-        raise ValueError(f"{where}: particle id {frame.ids[k]} has a non-finite position "
+        raise FrameError(frame.source, frame.index, frame.step,
+                         f"particle id {frame.ids[k]} has a non-finite position "
                          f"{frame.positions[k].tolist()} ({len(bad)} such particles)")
     if radius is not None:
         bad = np.flatnonzero(~(np.asarray(radius) >= 0) | ~np.isfinite(radius))
         if len(bad):
             k = bad[0]
-            raise ValueError(f"{where}: particle id {frame.ids[k]} has radius {radius[k]}; radii "
-                             f"must be finite and non-negative ({len(bad)} such particles)")
+            raise FrameError(frame.source, frame.index, frame.step,
+                             f"particle id {frame.ids[k]} has radius {radius[k]}; radii must "
+                             f"be finite and non-negative ({len(bad)} such particles)")
     molecule = frame.molecule if params.clumps else None
     if params.clumps and molecule is None:
         raise ValueError(f"{frame.source} frame {frame.index} has no molecule (mol) column "
@@ -252,9 +256,10 @@ class FrameError(ValueError):
             # option is not theirs to offer)
             message = message.replace(
                 ", or periodic_images='all' to get every image with its shift", "")
-            message += ("; or search an axis as open: a LAMMPS 2-D run's periodic z, one "
-                        "unit thick, is no real axis (--open z; Python: "
-                        "ContactParams(open_axes=(2,)))")
+            if "across cell vector 2" in message:
+                message += ("; or search z as open if it is no real axis, as a LAMMPS 2-D "
+                            "run's periodic z one unit thick (--open z; Python: "
+                            "open_axes=(2,))")
         return cls(frame.source, frame.index, frame.step, message)
 
 
@@ -382,7 +387,10 @@ def _domain_results(frames, params, client, threshold, on_plan):
     """Results of frames each split over the cluster; ``on_plan`` told once."""
     told = False
     for frame in frames:
-        res, search = domain_frame_contacts(frame, params, client)
+        try:
+            res, search = domain_frame_contacts(frame, params, client)
+        except ValueError as exc:
+            raise FrameError.of(frame, exc) from None
         if not told and on_plan is not None:
             k0, k1, k2 = search.grid
             on_plan(f"frame of {frame.n_particles} particles (>= {threshold}, the domain "
