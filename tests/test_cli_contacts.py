@@ -558,3 +558,28 @@ def test_a_lammps_2d_run_with_z_searched_open(tmp_path, capsys):
             granularsap.io.ContactParams(cutoff=1.0, open_axes=bad)
         with pytest.raises(ValueError, match="open_axes must be distinct axis numbers"):
             granularsap.compare.compare_trajectory(path, open_axes=bad)
+
+
+def test_a_dump_with_cr_line_ends_gives_every_frame_on_workers(tmp_path):
+    # the workers read frames from byte offsets found by a scan for line starts;
+    # with old Mac line ends (CR only) the scan found the first frame alone, and a
+    # one-frame file was written as complete
+    from granularsap.io.lammps_dump import dump_frame_index
+
+    lf = tmp_path / "lf.dump"
+    write_dump(lf, random_frames(40, 4, cell=lammps_cell(6, 6, 6), seed=4),
+               columns=("id", "type", "radius", "x", "y", "z"))
+    cr = tmp_path / "cr.dump"
+    cr.write_bytes(lf.read_bytes().replace(b"\n", b"\r"))
+    for a, b in zip(dump_frame_index(lf), dump_frame_index(cr), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert len(dump_frame_index(cr)[0]) == 4
+    outs = []
+    for name, extra in (("serial", []), ("workers", ["--workers", "2"])):
+        out = tmp_path / f"{name}.h5"
+        assert main(["contacts", str(cr), "-o", str(out), "-q", *extra]) == 0
+        outs.append(out)
+    with ContactsFile(outs[0]) as a, ContactsFile(outs[1]) as b:
+        assert a.n_frames == b.n_frames == 4
+        for k in range(4):
+            np.testing.assert_array_equal(a.pairs(k), b.pairs(k))

@@ -198,28 +198,31 @@ def dump_frame_index(path):
     base = 0
     newlines = 0
     tail = b""
+    nl = None  # the line end: b"\n" (and CRLF), or b"\r" in a file of CR line ends only
     with open_dump(path) as fh:
         for chunk in _chunks(fh):
+            if nl is None:  # (as the reader's universal newlines take them)
+                nl = b"\r" if b"\n" not in chunk and b"\r" in chunk else b"\n"
             buf = tail + chunk
             start = base - len(tail)
             pos = buf.find(key)
-            prev, count = 0, newlines - tail.count(b"\n")
+            prev, count = 0, newlines - tail.count(nl)
             while pos >= 0:
-                if pos == 0 or buf[pos - 1:pos] == b"\n":
-                    count += buf.count(b"\n", prev, pos)
+                if pos == 0 or buf[pos - 1:pos] == nl:
+                    count += buf.count(nl, prev, pos)
                     prev = pos
                     if start + pos not in offsets[-1:]:
                         offsets.append(start + pos)
                         lines.append(count + 1)
                 pos = buf.find(key, pos + 1)
-            newlines += chunk.count(b"\n")
+            newlines += chunk.count(nl)
             base += len(chunk)
             tail = buf[-(len(key) - 1):]
         # LAMMPS writes ITEM: UNITS and ITEM: TIME (dump_modify units/time yes) before
         # ITEM: TIMESTEP: a frame starts at the first of them
         for k, off in enumerate(offsets):
             fh.seek(max(0, off - 1024))
-            before = fh.read(off - max(0, off - 1024)).split(b"\n")[:-1]
+            before = fh.read(off - max(0, off - 1024)).split(nl)[:-1]
             while len(before) >= 2 and (before[-2].startswith(b"ITEM: UNITS") or
                                         before[-2].rstrip() == b"ITEM: TIME"):
                 offsets[k] -= len(before[-2]) + len(before[-1]) + 2
