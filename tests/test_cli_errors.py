@@ -324,6 +324,11 @@ def test_a_frame_the_search_refuses_is_named_and_the_frames_before_kept(tmp_path
     assert main(["contacts", str(path), "-o", str(out), "-q"]) == 2
     msg = one_error_line(capsys)
     assert "run.dump: frame 3 (step 777): " in msg
+    from granularsap.io import ContactParams, FrameError, compute_contacts
+
+    with pytest.raises(FrameError) as err:  # the same from Python, with its parts
+        compute_contacts(path, tmp_path / "py.h5", ContactParams())
+    assert (err.value.frame, err.value.step, err.value.source) == (3, 777, str(path))
     if bad == "far particle":
         assert "(row 5 is particle id 106)" in msg
     else:

@@ -15,7 +15,7 @@ from .hdf5 import (
     read_contacts,
 )
 from .lammps_dump import DumpFormatError, iter_lammps_dump
-from .pipeline import ContactParams, compute_contacts, frame_contacts
+from .pipeline import ContactParams, FrameError, compute_contacts, frame_contacts
 from .readers import TrajectoryError, count_frames, iter_frames
 
 __all__ = [
@@ -25,6 +25,7 @@ __all__ = [
     "ContactsWriter",
     "DumpFormatError",
     "Frame",
+    "FrameError",
     "IncompleteFileError",
     "TrajectoryError",
     "box_to_cell",
