@@ -48,6 +48,25 @@ def as_pbc(pbc, name="pbc"):
     return np.array(arr, dtype=bool)
 
 
+
+def as_open_axes(axes, name="open_axes"):
+    """``axes`` as a sorted tuple of distinct axis numbers 0, 1, 2 (the axes to take
+    as open whatever a file's boundaries say), or ValueError naming ``name``.
+
+    Examples
+    --------
+    >>> as_open_axes([2, 0]), as_open_axes(())
+    ((0, 2), ())
+    """
+    try:
+        got = tuple(axes)
+    except TypeError:
+        got = (None,)
+    if (any(isinstance(a, (bool, np.bool_)) or not isinstance(a, (int, np.integer))
+            or not 0 <= a <= 2 for a in got) or len(set(got)) != len(got)):
+        raise ValueError(f"{name} must be distinct axis numbers 0, 1, 2, got {axes!r}")
+    return tuple(sorted(int(a) for a in got))
+
 def open_directions(periodic):
     """Orthonormal directions normal to the periodic cell vectors ``periodic`` (rows,
     zero to three of them, independent): one per open axis, for a box that needs a

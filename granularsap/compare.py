@@ -96,20 +96,6 @@ class _Setup:
         return radii[keys // n] + radii[keys % n] + self.skin
 
 
-def _checked_axes(axes):
-    """``open_axes`` as a tuple of distinct axis numbers 0, 1, 2, or ValueError."""
-    import numpy as np
-
-    try:
-        got = tuple(axes)
-    except TypeError:
-        got = None
-    if got is None or any(isinstance(a, (bool, np.bool_)) or not isinstance(a, (int, np.integer))
-                          or not 0 <= a <= 2 for a in got) or len(set(got)) != len(got):
-        raise ValueError(f"open_axes must be distinct axis numbers 0, 1, 2, got {axes!r}")
-    return tuple(int(a) for a in got)
-
-
 def _geometry(frame, open_axes=()):
     """(positions, cell or None, pbc) in the form granularsap takes: no cell for
     a frame open along every axis; ``open_axes`` open whatever the frame says."""
@@ -269,10 +255,11 @@ def compare_trajectory(trajectory, *, against=REFERENCES, cutoff=None, radius_co
     """
     import numpy as np
 
+    from .cell import as_open_axes
     from .io import iter_frames
     from .io.pipeline import FrameError
 
-    open_axes = _checked_axes(open_axes)
+    open_axes = as_open_axes(open_axes)
     stream = out if out is not None else sys.stdout
 
     def say(line):

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..cell import as_open_axes
 from ._frame import Frame
 from ._lock import OutputBusyError, lock_path, output_lock
 from .hdf5 import ContactsWriter, FrameResult, partial_path
@@ -67,15 +68,7 @@ class ContactParams:
     open_axes: tuple = ()
 
     def __post_init__(self):
-        try:
-            axes = tuple(self.open_axes)
-        except TypeError:
-            axes = (None,)
-        if (any(isinstance(a, (bool, np.bool_)) or not isinstance(a, (int, np.integer))
-                or not 0 <= a <= 2 for a in axes) or len(set(axes)) != len(axes)):
-            raise ValueError(f"open_axes must be distinct axis numbers 0, 1, 2, got "
-                             f"{self.open_axes!r}")
-        object.__setattr__(self, "open_axes", tuple(sorted(int(a) for a in axes)))
+        object.__setattr__(self, "open_axes", as_open_axes(self.open_axes))
         given = [n for n in ("cutoff", "radius", "radius_column") if getattr(self, n) is not None]
         if len(given) > 1:
             raise ValueError(f"give only one of cutoff, radius and radius_column, got "
