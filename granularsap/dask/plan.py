@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..search import ContactSearch, NeighborSearch
+from ..search.frame import WRAP_LIMIT, raise_unwrappable
 
 #: Particles routed per block when the frame is a NumPy array in the client.
 ROUTE_BLOCK = 1 << 20
@@ -86,15 +87,12 @@ def chunk_extent(pos, rad, offset, frac_cell):
         return inf, -inf, 0.0, 0.0
     s = raw_frac(frac_cell, pos)
     if frac_cell is not None:
-        # as the engine refuses it (grid.WRAP_LIMIT): a particle so far out along a
-        # periodic axis that wrapping it keeps no significant digit
-        far = np.abs(s[:, np.asarray(frac_cell.pbc, bool)]) >= 2.0 ** 52
+        # as the engine refuses it: a particle so far out along a periodic axis that
+        # wrapping it keeps no significant digit (its limit and its message)
+        far = np.abs(s[:, np.asarray(frac_cell.pbc, bool)]) >= WRAP_LIMIT
         if far.any():
             bad = int(np.flatnonzero(far.any(axis=1))[0])
-            raise ValueError(f"positions row {offset + bad} ({pos[bad].tolist()}) lies 2**52 "
-                             "cell lengths or more outside the cell along a periodic axis: "
-                             "wrapping it into the cell would keep no significant digit. Give "
-                             "coordinates within 2**52 cell lengths of the cell")
+            raise_unwrappable(pos, bad, "positions", row=offset + bad)
     rmax = float(rad.max()) if rad is not None and rad.size else 0.0
     return s.min(axis=0), s.max(axis=0), float(np.abs(s).max()), rmax
 

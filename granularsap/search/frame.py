@@ -230,12 +230,13 @@ def as_labels(clump_ids, n, name="clump_ids"):
     return np.ascontiguousarray(ids, dtype=np.int64)
 
 
-def raise_unwrappable(given, bad, name):
+def raise_unwrappable(given, bad, name, row=None):
     """The error of row ``bad`` of ``given`` (argument ``name``) too far outside
-    the cell to wrap; nothing when ``bad`` is -1."""
+    the cell to wrap, called ``row`` in the message (default ``bad``: a chunk's
+    row names its row in the whole array); nothing when ``bad`` is -1."""
     if bad >= 0:
         raise ValueError(
-            f"{name} row {bad} ({given[bad].tolist()}) lies about {WRAP_LIMIT:.3g} cell "
-            "lengths or more outside the cell along a periodic axis: wrapping it into the "
-            "cell would keep no significant digit. Give coordinates within 2**52 cell "
-            "lengths of the cell")
+            f"{name} row {bad if row is None else row} ({given[bad].tolist()}) lies about "
+            f"{WRAP_LIMIT:.3g} cell lengths or more outside the cell along a periodic axis: "
+            "wrapping it into the cell would keep no significant digit. Give coordinates "
+            "within 2**52 cell lengths of the cell")
