@@ -616,6 +616,22 @@ class PairIdentity(_Rows):
         kernels.entries_rising(e, bounds, rising)
         return bool(rising.all()) and self._joins_rise(e, bounds)
 
+    def _step(self, kernels, mapped):
+        """Pass 1's kernel in ``kernels`` for particles mapped by ids or not and
+        with or without shifts (``match_in_step``)."""
+        return getattr(kernels, "match_in_step" + ("_ids" if mapped else "")
+                       + ("_shifts" if self.shifts else ""))
+
+    @staticmethod
+    def _reach(k, k_prev):
+        """Previous rows a chunk's cursor looks through to place itself."""
+        return int(min(k_prev, 4096 + 2 * abs(k - k_prev)))
+
+    @staticmethod
+    def _too_many(n_prev):
+        return ValueError(f"contact identity follows up to 2**32 particles, the previous "
+                          f"call had {n_prev}")
+
     def _match(self, pairs, m, prev, shifts, jumps, out, matched, kernels, chunks, sets):
         """The general matching (``kernels/identity.py``): pass 1 follows the
         previous list with a cursor, pass 2 matches what it left against the
@@ -626,13 +642,11 @@ class PairIdentity(_Rows):
         bounds = _bounds(k, chunks)
         self._todo = todo = _grow(self._todo, k, np.int64)
         todo_counts = np.zeros(chunks, np.int64)
-        reach = int(min(k_prev, 4096 + 2 * abs(k - k_prev)))
         mapped = m is not None
         m = m if mapped else _NO_ROWS
-        step = getattr(kernels, "match_in_step" + ("_ids" if mapped else "")
-                       + ("_shifts" if self.shifts else ""))
-        step(pairs, m, prev[2], shifts, jumps, prev_pairs, prev[1], bounds, reach, out, matched,
-             todo, todo_counts)
+        self._step(kernels, mapped)(pairs, m, prev[2], shifts, jumps, prev_pairs, prev[1],
+                                    bounds, self._reach(k, k_prev), out, matched, todo,
+                                    todo_counts)
         left = self._unmatched(matched, k_prev, chunks, kernels, sets, "left")
         n_todo = int(todo_counts.sum())
         self._last_counts = (n_todo, len(left))
@@ -642,8 +656,7 @@ class PairIdentity(_Rows):
             ended[:len(left)] = left
             return ended[:len(left)]
         if prev[2] >= 2**32:
-            raise ValueError(f"contact identity follows up to 2**32 particles, the previous "
-                             f"call had {prev[2]}")
+            raise self._too_many(prev[2])
         keys, rows, scratch_keys, scratch_rows, counts, sorted_in = self._rest_buffers(
             max(len(left), n_todo))
         kernels.rest_sort(pairs, m, mapped, prev[2], self.shifts, shifts, jumps, prev_pairs,
@@ -682,11 +695,9 @@ class PairIdentity(_Rows):
         mapped = m is not None
         m = m if mapped else _NO_ROWS
         todo_counts = np.zeros(1, np.int64)
-        step = getattr(kern.serial, "match_in_step" + ("_ids" if mapped else "")
-                       + ("_shifts" if self.shifts else ""))
-        step(pairs, m, prev[2], shifts, jumps, prev_pairs, prev[1], np.array([0, k], np.int64),
-             int(min(k_prev, 4096 + 2 * abs(k - k_prev))), out, flags[:k_prev], todo,
-             todo_counts)
+        self._step(kern.serial, mapped)(pairs, m, prev[2], shifts, jumps, prev_pairs, prev[1],
+                                        np.array([0, k], np.int64), self._reach(k, k_prev), out,
+                                        flags[:k_prev], todo, todo_counts)
         n_todo = int(todo_counts[0])
         # pass 2's buffers as large as its work, made when it first has more
         rest = self._rest if self._rest is not None else _NO_REST
@@ -699,8 +710,7 @@ class PairIdentity(_Rows):
             rest = self._rest_buffers(max(int(n_left), n_todo))
         self._last_counts = (n_todo, int(n_left))
         if n_ended < 0:
-            raise ValueError(f"contact identity follows up to 2**32 particles, the previous "
-                             f"call had {prev[2]}")
+            raise self._too_many(prev[2])
         return ended[:n_ended]
 
     # -------------------------------------------------------------- clumps

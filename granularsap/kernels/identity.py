@@ -95,7 +95,6 @@ def map_ids_dense(prev_ids, ids, lo, table, m):
     return -1, -1
 
 
-
 @jit
 def same_ids(ids, prev_ids):
     """Whether two id arrays of one length are equal, row for row."""
@@ -103,6 +102,7 @@ def same_ids(ids, prev_ids):
         if ids[a] != prev_ids[a]:
             return False
     return True
+
 
 @ijit
 def _slot(key, mask, shift):
@@ -475,16 +475,15 @@ def rest_ended(left, matched, ended):
     return e
 
 
-
 @jit
 def rest_one(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, prev_shifts,
              n_todo, prev_rows, flags, todo, left, keys, rows, scratch_keys, scratch_rows,
              counts, ended):
     """What follows pass 1 in a small call, in one serial kernel: the previous rows
     pass 1 left (``unmatched_into``), pass 2 on them and the ``n_todo`` rows of
-    ``todo`` it did not find (``rest_sort`` one list after the other,
-    ``rest_merge``), and the rows that ended (``rest_ended``).  ``flags``:
-    ``matched`` as pass 1 left it, padded as ``unmatched_words`` reads it;
+    ``todo`` it did not find (``rest_sort``'s serial build, ``rest_merge``), and
+    the rows that ended (``rest_ended``).  ``flags``: ``matched`` as pass 1 left
+    it, padded as ``unmatched_words`` reads it;
     ``left`` has room for every previous row, ``keys`` ... ``scratch_rows`` (2,
     >= both counts) and ``counts`` are ``rest_sort``'s.  Returns (rows ended,
     -1 when pass 2 has work but ``n_prev`` is 2**32 or more, -2 when it has
@@ -502,17 +501,14 @@ def rest_one(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, pr
     bounds = np.zeros(2, np.int64)
     bounds[1] = n_todo
     todo_counts = np.full(1, n_todo, np.int64)
-    _rest_left(prev_pairs, prev_shifts, with_shift, n_prev, left[:n_left], keys[0], rows[0])
-    _rest_todo(pairs, m, mapped, n_prev, with_shift, shifts, jumps, bounds, todo, todo_counts,
-               keys[1], rows[1])
-    in_left = radix_segment(keys[0], rows[0], scratch_keys[0], scratch_rows[0], np.int64(0),
-                            n_left, counts[0])
-    in_todo = radix_segment(keys[1], rows[1], scratch_keys[1], scratch_rows[1], np.int64(0),
-                            n_todo, counts[1])
-    kl = keys[0, :n_left] if in_left else scratch_keys[0, :n_left]
-    rl = rows[0, :n_left] if in_left else scratch_rows[0, :n_left]
-    kt = keys[1, :n_todo] if in_todo else scratch_keys[1, :n_todo]
-    rt = rows[1, :n_todo] if in_todo else scratch_rows[1, :n_todo]
+    sorted_in = np.zeros(2, np.uint8)
+    _rest_sort_serial(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs,
+                      prev_shifts, bounds, todo, todo_counts, n_todo, left[:n_left], keys, rows,
+                      scratch_keys, scratch_rows, counts, sorted_in)
+    kl = keys[0, :n_left] if sorted_in[0] else scratch_keys[0, :n_left]
+    rl = rows[0, :n_left] if sorted_in[0] else scratch_rows[0, :n_left]
+    kt = keys[1, :n_todo] if sorted_in[1] else scratch_keys[1, :n_todo]
+    rt = rows[1, :n_todo] if sorted_in[1] else scratch_rows[1, :n_todo]
     rest_merge(pairs, m, mapped, n_prev, with_shift, shifts, jumps, prev_pairs, prev_shifts,
                kl, rl, kt, rt, prev_rows, flags)
     return rest_ended(left[:n_left], flags, ended), n_left
@@ -729,3 +725,6 @@ serial = SimpleNamespace(**{name: serial_twin(globals()[name]) for name in (
     "match_in_step", "match_in_step_ids", "match_in_step_shifts",
     "match_in_step_ids_shifts", "match_entries", "entries_rising",
     "unmatched_words", "match_keys", "rest_sort")})
+
+#: ``rest_sort`` on one thread, for ``rest_one`` (a kernel calls it by this name)
+_rest_sort_serial = serial.rest_sort
